@@ -1,0 +1,83 @@
+!> Benchmark: wall time per step per particle of the whole solver, and of the neighbour search
+!> alone, on periodic boxes of growing size in 2D and 3D. Prints one line per case.
+!>   mpirun -np N build/bin/sphremesh_bench [steps]
+program bench_sph_step
+    use sph_kinds, only: wp, i8
+    use sph_mpi_env, only: mpi_env_t, mpi_env_init_world, mpi_env_free, global_sum, global_max
+    use sph_config, only: config_t, config_parse, config_validate
+    use sph_simulation, only: simulation_t, simulation_setup, simulation_step
+    use sph_cell_list, only: neighbour_list_t, build_neighbour_list
+    use sph_logger, only: logger_init, VERBOSITY_QUIET
+    use mpi_f08, only: MPI_Finalize, MPI_Barrier, MPI_Wtime
+    implicit none
+
+    type(mpi_env_t) :: env
+    integer :: steps, ierr, k
+    character(len=32) :: arg
+    integer, parameter :: sizes_2d(3) = [64, 128, 256], sizes_3d(2) = [16, 32]
+
+    call mpi_env_init_world(env)
+    call logger_init(env%rank, VERBOSITY_QUIET)
+    steps = 20
+    if (command_argument_count() >= 1) then
+        call get_command_argument(1, arg)
+        read(arg, *) steps
+    end if
+    if (env%rank == 0) then
+        write(*, '(a,i0,a)') '# sphremesh benchmark, ', env%nranks, ' rank(s)'
+        write(*, '(a)') '# case            particles  neighbours/particle  step[s]' // &
+            '  us/(particle step)  search us/particle'
+    end if
+    do k = 1, size(sizes_2d)
+        call run_case(2, sizes_2d(k))
+    end do
+    do k = 1, size(sizes_3d)
+        call run_case(3, sizes_3d(k))
+    end do
+    call mpi_env_free(env)
+    call MPI_Finalize(ierr)
+
+contains
+
+    subroutine run_case(dim, n)
+        integer, intent(in) :: dim, n
+        type(config_t) :: cfg
+        type(simulation_t) :: sim
+        type(neighbour_list_t) :: nl
+        integer :: stat, s
+        character(len=:), allocatable :: msg, text
+        character(len=32) :: dim_text, dx_text
+        real(wp) :: t0, t_step, t_search, pairs
+        integer(i8) :: n_total
+        write(dim_text, '(i0)') dim
+        write(dx_text, '(es24.16)') 1.0_wp / n
+        text = "&run case_name='bench' /" // new_line('a') // "&domain dimension=" // &
+            trim(dim_text) // ", box_hi=1.0, 1.0, 1.0, dx=" // trim(dx_text) // " /" // &
+            new_line('a') // "&fluid nu=1.0e-2, sound_speed=1.0 /" // new_line('a')
+        call config_parse(cfg, text, 'bench', stat, msg)
+        if (stat == 0) call config_validate(cfg, stat, msg)
+        if (stat /= 0) then
+            write(*, '(a)') msg
+            error stop 1
+        end if
+        call simulation_setup(sim, env, cfg)
+        call simulation_step(sim, env)   ! warm-up
+        call MPI_Barrier(env%comm)
+        t0 = MPI_Wtime()
+        do s = 1, steps
+            call simulation_step(sim, env)
+        end do
+        t_step = global_max(env, (MPI_Wtime() - t0) / steps)
+        t0 = MPI_Wtime()
+        do s = 1, steps
+            call build_neighbour_list(sim%p%x, sim%p%n_total, sim%p%n_owned, dim, &
+                sim%phys%kernel%support, nl)
+        end do
+        t_search = global_max(env, (MPI_Wtime() - t0) / steps)
+        n_total = global_sum(env, int(sim%p%n_owned, i8))
+        pairs = global_sum(env, real(nl%n_pairs, wp))
+        if (env%rank == 0) write(*, '(a,i1,a,i4,i14,f14.1,es14.4,f14.3,f16.3)') '  box', dim, 'd n=', n, &
+            n_total, pairs / n_total, t_step, t_step / n_total * env%nranks * 1.0e6_wp, &
+            t_search / n_total * env%nranks * 1.0e6_wp
+    end subroutine run_case
+end program bench_sph_step

@@ -1,0 +1,36 @@
+"""Analytic channel solutions (Morris et al. 1997; thesis eqs. 4.4 and 4.5 with the sign slips
+of 4.5 corrected), for checking snapshots independently of the Fortran code."""
+import numpy as np
+
+
+def couette(y, t, wall_speed, width, nu, terms=2000):
+    """Plate at y = width moving at wall_speed from t = 0; t = inf gives the steady profile."""
+    y = np.asarray(y, dtype=float)
+    v = wall_speed * y / width
+    if np.isinf(t):
+        return v
+    if t <= 0:
+        return np.zeros_like(y)
+    for n in range(1, terms + 1):
+        decay = np.exp(-nu * (n * np.pi / width) ** 2 * t)
+        v = v + 2 * wall_speed / (n * np.pi) * (-1) ** n * np.sin(n * np.pi * y / width) * decay
+        if decay < 1e-18:
+            break
+    return v
+
+
+def poiseuille(y, t, force, width, nu, terms=2000):
+    """Body force per unit mass `force` along x from t = 0 between resting plates."""
+    y = np.asarray(y, dtype=float)
+    v = force / (2 * nu) * y * (width - y)
+    if np.isinf(t):
+        return v
+    if t <= 0:
+        return np.zeros_like(y)
+    for n in range(terms):
+        k = 2 * n + 1
+        decay = np.exp(-(k * np.pi / width) ** 2 * nu * t)
+        v = v - 4 * force * width ** 2 / (nu * np.pi ** 3 * k ** 3) * np.sin(k * np.pi * y / width) * decay
+        if decay < 1e-18:
+            break
+    return v

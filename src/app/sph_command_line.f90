@@ -1,0 +1,92 @@
+!> Command-line options of the sphremesh program. Parsed identically on every rank.
+module sph_command_line
+    implicit none
+    private
+    public :: options_t, parse_command_line, usage_text
+
+    type :: options_t
+        logical :: show_help = .false.
+        logical :: show_version = .false.
+        character(len=:), allocatable :: input_file
+        character(len=:), allocatable :: restart_from   !< checkpoint file or directory, '' = none
+    end type options_t
+
+contains
+
+    subroutine parse_command_line(opts, stat, errmsg)
+        type(options_t), intent(out) :: opts
+        integer, intent(out) :: stat
+        character(len=:), allocatable, intent(out) :: errmsg
+        integer :: i, n
+        character(len=:), allocatable :: arg
+
+        stat = 0
+        errmsg = ''
+        opts%input_file = ''
+        opts%restart_from = ''
+        n = command_argument_count()
+        i = 1
+        do while (i <= n)
+            arg = argument(i)
+            select case (arg)
+            case ('-h', '--help')
+                opts%show_help = .true.
+            case ('-V', '--version')
+                opts%show_version = .true.
+            case ('--restart')
+                if (i == n) then
+                    stat = 1
+                    errmsg = '--restart needs a checkpoint file or a directory of checkpoints'
+                    return
+                end if
+                i = i + 1
+                opts%restart_from = argument(i)
+            case default
+                if (arg(1:1) == '-') then
+                    stat = 1
+                    errmsg = "unknown option '" // arg // "' (see sphremesh --help)"
+                    return
+                end if
+                if (len(opts%input_file) > 0) then
+                    stat = 1
+                    errmsg = "only one input file may be given, got '" // opts%input_file // &
+                        "' and '" // arg // "'"
+                    return
+                end if
+                opts%input_file = arg
+            end select
+            i = i + 1
+        end do
+        if (.not. (opts%show_help .or. opts%show_version) .and. len(opts%input_file) == 0) then
+            stat = 1
+            errmsg = 'no input file given (usage: sphremesh INPUT.nml [--restart CHECKPOINT]; ' // &
+                'see sphremesh --help)'
+        end if
+    end subroutine parse_command_line
+
+    function argument(i) result(arg)
+        integer, intent(in) :: i
+        character(len=:), allocatable :: arg
+        integer :: length
+        call get_command_argument(i, length=length)
+        allocate(character(len=length) :: arg)
+        if (length > 0) call get_command_argument(i, arg)
+    end function argument
+
+    function usage_text() result(text)
+        character(len=:), allocatable :: text
+        character(len=*), parameter :: nl = new_line('a')
+        text = &
+            'usage: mpirun -np N sphremesh INPUT.nml [--restart CHECKPOINT.h5|DIR]' // nl // &
+            '       sphremesh --help | --version' // nl // nl // &
+            'Smoothed Particle Hydrodynamics for low-Reynolds-number, nearly incompressible' // nl // &
+            'flows, configured by a Fortran namelist file (see doc/input.md and input/).' // nl // nl // &
+            'options:' // nl // &
+            '  -h, --help         print this help and exit' // nl // &
+            '  -V, --version      print the version, git hash and build options and exit' // nl // &
+            '  --restart PATH     continue from a checkpoint file, or from the newest' // nl // &
+            '                     complete checkpoint in directory PATH' // nl // nl // &
+            'namelist groups: &run &output &domain &fluid &numerics &parallel &restart' // nl // &
+            'example: mpirun -np 2 sphremesh input/poiseuille.nml'
+    end function usage_text
+end module sph_command_line

@@ -1,0 +1,56 @@
+!> sphremesh: mpirun -np N sphremesh INPUT.nml [--restart CHECKPOINT]
+program sphremesh_main
+    use sph_mpi_env, only: mpi_env_t, mpi_env_init_world, mpi_env_free
+    use sph_errors, only: fatal_collective, check_mpi, exit_process
+    use sph_logger, only: logger_init, log_info, log_warning_summary
+    use sph_command_line, only: options_t, parse_command_line, usage_text
+    use sph_config, only: config_t, config_to_text
+    use sph_input, only: load_config
+    use sph_version, only: code_version, build_options
+    use sph_simulation, only: simulation_run
+    use mpi_f08, only: MPI_Finalize
+    implicit none
+
+    type(mpi_env_t) :: env
+    type(options_t) :: opts
+    type(config_t) :: cfg
+    integer :: stat, ierr
+    character(len=:), allocatable :: errmsg
+    character(len=16) :: nranks_text
+
+    call mpi_env_init_world(env)
+    call logger_init(env%rank)
+
+    call parse_command_line(opts, stat, errmsg)
+    if (stat /= 0) call fatal_collective('command line', errmsg)
+    if (opts%show_help .or. opts%show_version) then
+        if (opts%show_help) call log_info(usage_text())
+        if (opts%show_version) then
+            call log_info(code_version)
+            call log_info('build: ' // build_options)
+        end if
+        call finish()
+    end if
+
+    write(nranks_text, '(i0)') env%nranks
+    call log_info(code_version // ' on ' // trim(nranks_text) // ' MPI rank(s)')
+    call log_info('build: ' // build_options)
+    call load_config(env, opts%input_file, cfg, stat, errmsg)
+    if (stat /= 0) call fatal_collective('input', errmsg)
+    call log_info('resolved configuration (' // opts%input_file // '):')
+    call log_info(config_to_text(cfg))
+
+    call simulation_run(env, cfg, opts%restart_from)
+
+    call log_warning_summary()
+    call finish()
+
+contains
+
+    subroutine finish()
+        call mpi_env_free(env)
+        call MPI_Finalize(ierr)
+        call check_mpi(ierr, 'MPI_Finalize')
+        call exit_process(0)
+    end subroutine finish
+end program sphremesh_main

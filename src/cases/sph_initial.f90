@@ -1,0 +1,143 @@
+!> Initial particles: fluid at rest on a lattice of spacing dx filling the box, and the wall
+!> particles of the chosen wall model. Each rank makes only the particles its subdomain owns;
+!> global ids come from lattice indices, so they do not depend on the rank count.
+module sph_initial
+    use sph_kinds, only: wp, i8
+    use sph_config, only: config_t
+    use sph_particles, only: particles_t, particles_reserve, KIND_FLUID, KIND_WALL
+    use sph_physics, only: physics_t, WALLS_MORRIS, WALLS_REPULSIVE, WALLS_REPULSIVE_MIRROR
+    use sph_walls, only: wall_geometry_t, wall_layers, wall_lattice_ranges, wall_site
+    use sph_domain, only: domain_t, domain_owner
+    use sph_eos, only: eos_pressure
+    implicit none
+    private
+    public :: create_lattice_particles
+
+contains
+
+    subroutine create_lattice_particles(cfg, phys, geo, domain, p)
+        type(config_t), intent(in) :: cfg
+        type(physics_t), intent(in) :: phys
+        type(wall_geometry_t), intent(in) :: geo
+        type(domain_t), intent(in) :: domain
+        type(particles_t), intent(inout) :: p
+        integer :: n_inside(3), first(3), last(3), idx(3), i, j, k, face, layers, axis
+        integer(i8) :: n_fluid_total, n_ext(3), linear
+        real(wp) :: xi(3), normal(3), distance, mass
+        logical :: site
+
+        n_inside = 1
+        do axis = 1, cfg%dimension
+            n_inside(axis) = nint((cfg%box_hi(axis) - cfg%box_lo(axis)) / cfg%dx)
+        end do
+        n_fluid_total = product(int(n_inside, i8))
+        mass = cfg%rho0 * cfg%dx**cfg%dimension
+        p%n_owned = 0
+        ! fluid
+        do k = 1, n_inside(3)
+            do j = 1, n_inside(2)
+                do i = 1, n_inside(1)
+                    idx = [i, j, k]
+                    xi = lattice_position(idx)
+                    if (domain_owner(domain, xi) /= domain%rank) cycle
+                    linear = 1 + (i - 1) + int(n_inside(1), i8) * ((j - 1) + int(n_inside(2), i8) * (k - 1))
+                    call add_particle(xi, linear, KIND_FLUID, [0.0_wp, 0.0_wp, 0.0_wp], 0.0_wp, &
+                        [0.0_wp, 0.0_wp, 0.0_wp])
+                end do
+            end do
+        end do
+        ! Morris wall particles: every extended-lattice site behind a wall
+        if (phys%walls == WALLS_MORRIS) then
+            layers = wall_layers(phys)
+            call wall_lattice_ranges(cfg, layers, first, last)
+            n_ext = int(last - first + 1, i8)
+            do k = first(3), last(3)
+                do j = first(2), last(2)
+                    do i = first(1), last(1)
+                        idx = [i, j, k]
+                        call wall_site(geo, n_inside, idx, cfg%dx, site, face, normal, distance)
+                        if (.not. site) cycle
+                        xi = lattice_position(idx)
+                        if (domain_owner(domain, xi) /= domain%rank) cycle
+                        linear = n_fluid_total + 1 + (i - first(1)) + n_ext(1) * ((j - first(2)) + &
+                            n_ext(2) * (k - first(3)))
+                        call add_particle(xi, linear, KIND_WALL, normal, distance, geo%velocity(:, face))
+                    end do
+                end do
+            end do
+        end if
+        ! thesis type-1 particles: one layer on each wall plane, spacing dx
+        if (phys%walls == WALLS_REPULSIVE .or. phys%walls == WALLS_REPULSIVE_MIRROR) then
+            call add_type1_layers(n_fluid_total)
+        end if
+        p%n_total = p%n_owned
+        p%n_ghost = 0
+
+    contains
+
+        function lattice_position(ix) result(x)
+            integer, intent(in) :: ix(3)
+            real(wp) :: x(3)
+            x = 0.0_wp
+            x(1:cfg%dimension) = cfg%box_lo(1:cfg%dimension) + &
+                (real(ix(1:cfg%dimension), wp) - 0.5_wp) * cfg%dx
+        end function lattice_position
+
+        subroutine add_particle(x, id, kind, wall_normal, wall_distance, velocity)
+            real(wp), intent(in) :: x(3), wall_normal(3), wall_distance, velocity(3)
+            integer(i8), intent(in) :: id
+            integer, intent(in) :: kind
+            integer :: n
+            n = p%n_owned + 1
+            call particles_reserve(p, n)
+            p%x(:, n) = x
+            p%v(:, n) = velocity
+            p%rho(n) = cfg%rho0
+            p%p(n) = eos_pressure(phys%eos, cfg%rho0, phys%rho0, phys%c, phys%gamma)
+            p%m(n) = mass
+            p%h(n) = phys%kernel%h
+            p%e(n) = 0.0_wp
+            p%dvdt(:, n) = 0.0_wp; p%drhodt(n) = 0.0_wp; p%dedt(n) = 0.0_wp
+            p%x_old(:, n) = x; p%v_old(:, n) = velocity; p%rho_old(n) = cfg%rho0; p%e_old(n) = 0.0_wp
+            p%strain(:, n) = 0.0_wp
+            p%wall_normal(:, n) = wall_normal
+            p%wall_distance(n) = wall_distance
+            p%id(n) = id
+            p%kind(n) = kind
+            p%level(n) = 0
+            p%n_owned = n
+            p%n_total = n
+        end subroutine add_particle
+
+        !> Sites on each wall plane at the tangential lattice positions (corners skipped).
+        subroutine add_type1_layers(id_base)
+            integer(i8), intent(in) :: id_base
+            integer :: f, ax, t1, t2, a, b, na, nb
+            integer(i8) :: id
+            real(wp) :: x(3), nrm(3)
+            id = id_base + 1000000000_i8   ! clear of every fluid id
+            do f = 1, 2 * cfg%dimension
+                if (.not. geo%is_wall(f)) cycle
+                ax = (f + 1) / 2
+                t1 = merge(2, 1, ax == 1)
+                t2 = 6 - ax - t1
+                na = n_inside(t1)
+                nb = 1
+                if (cfg%dimension == 3) nb = n_inside(t2)
+                nrm = 0.0_wp
+                nrm(ax) = merge(1.0_wp, -1.0_wp, mod(f, 2) == 1)
+                do b = 1, nb
+                    do a = 1, na
+                        id = id + 1
+                        x = 0.0_wp
+                        x(ax) = geo%plane(f)
+                        x(t1) = cfg%box_lo(t1) + (real(a, wp) - 0.5_wp) * cfg%dx
+                        if (cfg%dimension == 3) x(t2) = cfg%box_lo(t2) + (real(b, wp) - 0.5_wp) * cfg%dx
+                        if (domain_owner(domain, x) /= domain%rank) cycle
+                        call add_particle(x, id, KIND_WALL, nrm, 0.0_wp, geo%velocity(:, f))
+                    end do
+                end do
+            end do
+        end subroutine add_type1_layers
+    end subroutine create_lattice_particles
+end module sph_initial

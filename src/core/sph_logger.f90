@@ -1,0 +1,83 @@
+!> Rank-0 logger with levels. Repeated warnings are counted under a key and summarised once,
+!> so a per-particle condition never floods the log.
+module sph_logger
+    use, intrinsic :: iso_fortran_env, only: output_unit, error_unit
+    implicit none
+    private
+    public :: VERBOSITY_QUIET, VERBOSITY_INFO, VERBOSITY_DEBUG
+    public :: logger_init, log_info, log_debug, log_warn, log_warn_counted, log_warning_summary
+    public :: logger_is_root
+
+    integer, parameter :: VERBOSITY_QUIET = 0, VERBOSITY_INFO = 1, VERBOSITY_DEBUG = 2
+    integer, parameter :: max_keys = 64
+
+    ! Logger settings: the logger's own state, set once by logger_init.
+    integer, save :: my_rank = 0
+    integer, save :: level = VERBOSITY_INFO
+    character(len=64), save :: warn_keys(max_keys) = ''
+    integer, save :: warn_counts(max_keys) = 0
+    integer, save :: n_keys = 0
+
+contains
+
+    subroutine logger_init(rank, verbosity)
+        integer, intent(in) :: rank
+        integer, intent(in), optional :: verbosity
+        my_rank = rank
+        if (present(verbosity)) level = verbosity
+    end subroutine logger_init
+
+    logical function logger_is_root()
+        logger_is_root = my_rank == 0
+    end function logger_is_root
+
+    subroutine log_info(message)
+        character(len=*), intent(in) :: message
+        if (my_rank == 0 .and. level >= VERBOSITY_INFO) then
+            write(output_unit, '(a)') trim(message)
+            flush(output_unit)
+        end if
+    end subroutine log_info
+
+    subroutine log_debug(message)
+        character(len=*), intent(in) :: message
+        if (my_rank == 0 .and. level >= VERBOSITY_DEBUG) write(output_unit, '(a)') '[debug] ' // trim(message)
+    end subroutine log_debug
+
+    !> A warning known to be the same on every rank: printed once by rank 0.
+    subroutine log_warn(message)
+        character(len=*), intent(in) :: message
+        if (my_rank == 0) write(error_unit, '(a)') 'sphremesh: warning: ' // trim(message)
+    end subroutine log_warn
+
+    !> A warning that may repeat (per particle, per step): the first is printed, the rest counted.
+    subroutine log_warn_counted(key, message)
+        character(len=*), intent(in) :: key, message
+        integer :: k
+        do k = 1, n_keys
+            if (warn_keys(k) == key) then
+                warn_counts(k) = warn_counts(k) + 1
+                return
+            end if
+        end do
+        if (n_keys < max_keys) then
+            n_keys = n_keys + 1
+            warn_keys(n_keys) = key
+            warn_counts(n_keys) = 1
+        end if
+        write(error_unit, '(a)') 'sphremesh: warning: ' // trim(message) // &
+            ' (further occurrences counted, see summary)'
+    end subroutine log_warn_counted
+
+    subroutine log_warning_summary()
+        integer :: k
+        character(len=16) :: text
+        do k = 1, n_keys
+            if (warn_counts(k) > 1) then
+                write(text, '(i0)') warn_counts(k)
+                write(error_unit, '(a)') 'sphremesh: warning "' // trim(warn_keys(k)) // &
+                    '" occurred ' // trim(text) // ' times on this rank'
+            end if
+        end do
+    end subroutine log_warning_summary
+end module sph_logger

@@ -1,0 +1,44 @@
+!> Predictor-corrector (midpoint) stepping, thesis section 4.2:
+!>   predictor  q* = q^n + dt/2 F(q^n),    x* = x^n + dt/2 v^n
+!>   corrector  q^{n+1} = q^n + dt F(q*),  x^{n+1} = x^n + dt v*
+!> Both stages are `advance` from the saved start-of-step state with the current rates and
+!> velocity; it is second order in dt. Walls stay in place; their density follows the
+!> continuity equation when it is integrated.
+module sph_integrator
+    use sph_kinds, only: wp
+    use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL
+    implicit none
+    private
+    public :: save_step_start, advance
+
+contains
+
+    subroutine save_step_start(p)
+        type(particles_t), intent(inout) :: p
+        integer :: n
+        n = p%n_owned
+        p%x_old(:, 1:n) = p%x(:, 1:n)
+        p%v_old(:, 1:n) = p%v(:, 1:n)
+        p%rho_old(1:n) = p%rho(1:n)
+        p%e_old(1:n) = p%e(1:n)
+    end subroutine save_step_start
+
+    !> q = q_old + dt_stage * rate for owned particles; density only when it is integrated.
+    subroutine advance(p, dt_stage, integrate_density)
+        type(particles_t), intent(inout) :: p
+        real(wp), intent(in) :: dt_stage
+        logical, intent(in) :: integrate_density
+        integer :: i
+        do i = 1, p%n_owned
+            select case (p%kind(i))
+            case (KIND_FLUID)
+                p%x(:, i) = p%x_old(:, i) + dt_stage * p%v(:, i)
+                p%v(:, i) = p%v_old(:, i) + dt_stage * p%dvdt(:, i)
+                if (integrate_density) p%rho(i) = p%rho_old(i) + dt_stage * p%drhodt(i)
+                p%e(i) = p%e_old(i) + dt_stage * p%dedt(i)
+            case (KIND_WALL)
+                if (integrate_density) p%rho(i) = p%rho_old(i) + dt_stage * p%drhodt(i)
+            end select
+        end do
+    end subroutine advance
+end module sph_integrator

@@ -1,0 +1,194 @@
+!> Smoothing kernels W(r, h) and dW/dr, normalised in 1, 2 and 3 dimensions.
+!>   cubic B-spline (thesis eq. 2.5; support 2h), quintic spline (Morris 1997; support 3h),
+!>   Wendland C2 (support 2h; the 1-D member is the psi_{3,1} function).
+!> The scalar functions are pure elemental with no module state; kernel_t caches the
+!> per-run constants (sigma/h^d) for the particle loops. Chosen at run time by name.
+module sph_kernel
+    use sph_kinds, only: wp
+    implicit none
+    private
+    public :: KERNEL_CUBIC, KERNEL_QUINTIC, KERNEL_WENDLAND_C2
+    public :: kernel_t, kernel_create, kernel_id_from_name, kernel_name
+    public :: kernel_w, kernel_dwdr, kernel_support_factor, kernel_default_h_factor
+
+    integer, parameter :: KERNEL_CUBIC = 1, KERNEL_QUINTIC = 2, KERNEL_WENDLAND_C2 = 3
+    real(wp), parameter :: pi = acos(-1.0_wp)
+
+    !> A kernel with its smoothing length fixed: what the particle loops use.
+    type :: kernel_t
+        integer :: id = KERNEL_CUBIC
+        integer :: dim = 2
+        real(wp) :: h = 1.0_wp
+        real(wp) :: support = 2.0_wp       !< support radius, q_max * h
+        real(wp) :: inv_h = 1.0_wp
+        real(wp) :: w_norm = 1.0_wp        !< sigma_d / h^d
+        real(wp) :: dw_norm = 1.0_wp       !< sigma_d / h^(d+1)
+    contains
+        procedure :: w => kernel_t_w
+        procedure :: dwdr => kernel_t_dwdr
+    end type kernel_t
+
+contains
+
+    function kernel_create(id, dim, h) result(k)
+        integer, intent(in) :: id, dim
+        real(wp), intent(in) :: h
+        type(kernel_t) :: k
+        k%id = id
+        k%dim = dim
+        k%h = h
+        k%inv_h = 1.0_wp / h
+        k%support = kernel_support_factor(id) * h
+        k%w_norm = sigma(id, dim) / h**dim
+        k%dw_norm = k%w_norm / h
+    end function kernel_create
+
+    !> Kernel id for a namelist name; 0 when unknown.
+    integer function kernel_id_from_name(name)
+        character(len=*), intent(in) :: name
+        select case (trim(name))
+        case ('cubic'); kernel_id_from_name = KERNEL_CUBIC
+        case ('quintic'); kernel_id_from_name = KERNEL_QUINTIC
+        case ('wendland_c2'); kernel_id_from_name = KERNEL_WENDLAND_C2
+        case default; kernel_id_from_name = 0
+        end select
+    end function kernel_id_from_name
+
+    function kernel_name(id) result(name)
+        integer, intent(in) :: id
+        character(len=:), allocatable :: name
+        select case (id)
+        case (KERNEL_CUBIC); name = 'cubic'
+        case (KERNEL_QUINTIC); name = 'quintic'
+        case (KERNEL_WENDLAND_C2); name = 'wendland_c2'
+        case default; name = 'unknown'
+        end select
+    end function kernel_name
+
+    !> Support radius in units of h.
+    pure elemental real(wp) function kernel_support_factor(id)
+        integer, intent(in) :: id
+        select case (id)
+        case (KERNEL_QUINTIC); kernel_support_factor = 3.0_wp
+        case default; kernel_support_factor = 2.0_wp
+        end select
+    end function kernel_support_factor
+
+    !> h / dx giving about the usual neighbour count for each kernel.
+    pure elemental real(wp) function kernel_default_h_factor(id)
+        integer, intent(in) :: id
+        select case (id)
+        case (KERNEL_QUINTIC); kernel_default_h_factor = 1.0_wp
+        case (KERNEL_WENDLAND_C2); kernel_default_h_factor = 1.5_wp
+        case default; kernel_default_h_factor = 1.3_wp
+        end select
+    end function kernel_default_h_factor
+
+    !> Normalisation sigma_d: W = sigma_d / h^d f(r/h).
+    pure elemental real(wp) function sigma(id, dim)
+        integer, intent(in) :: id, dim
+        sigma = 0.0_wp
+        select case (id)
+        case (KERNEL_CUBIC)
+            select case (dim)
+            case (1); sigma = 2.0_wp / 3.0_wp
+            case (2); sigma = 10.0_wp / (7.0_wp * pi)
+            case (3); sigma = 1.0_wp / pi
+            end select
+        case (KERNEL_QUINTIC)
+            select case (dim)
+            case (1); sigma = 1.0_wp / 120.0_wp
+            case (2); sigma = 7.0_wp / (478.0_wp * pi)
+            case (3); sigma = 1.0_wp / (120.0_wp * pi)
+            end select
+        case (KERNEL_WENDLAND_C2)
+            select case (dim)
+            case (1); sigma = 5.0_wp / 8.0_wp
+            case (2); sigma = 7.0_wp / (4.0_wp * pi)
+            case (3); sigma = 21.0_wp / (16.0_wp * pi)
+            end select
+        end select
+    end function sigma
+
+    !> Shape f(q) without normalisation.
+    pure elemental real(wp) function shape(id, dim, q)
+        integer, intent(in) :: id, dim
+        real(wp), intent(in) :: q
+        shape = 0.0_wp
+        select case (id)
+        case (KERNEL_CUBIC)
+            if (q < 1.0_wp) then
+                shape = 1.0_wp - 1.5_wp * q**2 + 0.75_wp * q**3
+            else if (q < 2.0_wp) then
+                shape = 0.25_wp * (2.0_wp - q)**3
+            end if
+        case (KERNEL_QUINTIC)
+            if (q < 3.0_wp) shape = (3.0_wp - q)**5
+            if (q < 2.0_wp) shape = shape - 6.0_wp * (2.0_wp - q)**5
+            if (q < 1.0_wp) shape = shape + 15.0_wp * (1.0_wp - q)**5
+        case (KERNEL_WENDLAND_C2)
+            if (q < 2.0_wp) then
+                if (dim == 1) then
+                    shape = (1.0_wp - 0.5_wp * q)**3 * (1.5_wp * q + 1.0_wp)
+                else
+                    shape = (1.0_wp - 0.5_wp * q)**4 * (2.0_wp * q + 1.0_wp)
+                end if
+            end if
+        end select
+    end function shape
+
+    !> df/dq.
+    pure elemental real(wp) function shape_derivative(id, dim, q)
+        integer, intent(in) :: id, dim
+        real(wp), intent(in) :: q
+        shape_derivative = 0.0_wp
+        select case (id)
+        case (KERNEL_CUBIC)
+            if (q < 1.0_wp) then
+                shape_derivative = -3.0_wp * q + 2.25_wp * q**2
+            else if (q < 2.0_wp) then
+                shape_derivative = -0.75_wp * (2.0_wp - q)**2
+            end if
+        case (KERNEL_QUINTIC)
+            if (q < 3.0_wp) shape_derivative = -5.0_wp * (3.0_wp - q)**4
+            if (q < 2.0_wp) shape_derivative = shape_derivative + 30.0_wp * (2.0_wp - q)**4
+            if (q < 1.0_wp) shape_derivative = shape_derivative - 75.0_wp * (1.0_wp - q)**4
+        case (KERNEL_WENDLAND_C2)
+            if (q < 2.0_wp) then
+                if (dim == 1) then
+                    ! product rule on (1 - q/2)^3 (1.5 q + 1)
+                    shape_derivative = -1.5_wp * (1.0_wp - 0.5_wp * q)**2 * (1.5_wp * q + 1.0_wp) &
+                        + 1.5_wp * (1.0_wp - 0.5_wp * q)**3
+                else
+                    shape_derivative = -5.0_wp * q * (1.0_wp - 0.5_wp * q)**3
+                end if
+            end if
+        end select
+    end function shape_derivative
+
+    !> W(r, h) for a kernel id in dim dimensions.
+    pure elemental real(wp) function kernel_w(id, dim, r, h)
+        integer, intent(in) :: id, dim
+        real(wp), intent(in) :: r, h
+        kernel_w = sigma(id, dim) / h**dim * shape(id, dim, r / h)
+    end function kernel_w
+
+    !> dW/dr (r, h); the gradient is (x_i - x_j)/r * dW/dr.
+    pure elemental real(wp) function kernel_dwdr(id, dim, r, h)
+        integer, intent(in) :: id, dim
+        real(wp), intent(in) :: r, h
+        kernel_dwdr = sigma(id, dim) / h**(dim + 1) * shape_derivative(id, dim, r / h)
+    end function kernel_dwdr
+
+    pure real(wp) function kernel_t_w(self, r)
+        class(kernel_t), intent(in) :: self
+        real(wp), intent(in) :: r
+        kernel_t_w = self%w_norm * shape(self%id, self%dim, r * self%inv_h)
+    end function kernel_t_w
+
+    pure real(wp) function kernel_t_dwdr(self, r)
+        class(kernel_t), intent(in) :: self
+        real(wp), intent(in) :: r
+        kernel_t_dwdr = self%dw_norm * shape_derivative(self%id, self%dim, r * self%inv_h)
+    end function kernel_t_dwdr
+end module sph_kernel

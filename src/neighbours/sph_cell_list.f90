@@ -1,0 +1,196 @@
+!> Cell (linked) list neighbour search. Particles are binned into cells at least one search
+!> radius wide by a counting sort, so a query scans 3^dim cells: O(N) build and search.
+!> The list holds, for each query particle i (the owned ones), every other particle j among
+!> all n_total (owned + ghosts + mirrors) with |x_i - x_j| < radius: exactly the brute-force set.
+module sph_cell_list
+    use sph_kinds, only: wp
+    implicit none
+    private
+    public :: neighbour_list_t, build_neighbour_list, brute_force_neighbours, cell_sort_order
+
+    !> Compressed rows: the neighbours of i are index(start(i) : start(i+1)-1).
+    type :: neighbour_list_t
+        integer :: n_query = 0
+        integer :: n_pairs = 0
+        integer, allocatable :: start(:)
+        integer, allocatable :: index(:)
+    end type neighbour_list_t
+
+    !> The binning of one build, kept only while the list is built.
+    type :: cell_grid_t
+        integer :: dim = 2
+        integer :: ncell(3) = 1
+        real(wp) :: origin(3) = 0.0_wp
+        real(wp) :: inv_size = 1.0_wp
+        integer, allocatable :: cell_start(:)   !< (ncells + 1)
+        integer, allocatable :: sorted(:)       !< particle indices ordered by cell
+        integer, allocatable :: cell_of(:)      !< linear cell index of each particle
+    end type cell_grid_t
+
+contains
+
+    !> Neighbours within `radius` of the first n_query particles among the first n_total.
+    subroutine build_neighbour_list(x, n_total, n_query, dim, radius, nl)
+        real(wp), intent(in) :: x(:, :)
+        integer, intent(in) :: n_total, n_query, dim
+        real(wp), intent(in) :: radius
+        type(neighbour_list_t), intent(inout) :: nl
+        type(cell_grid_t) :: grid
+        integer :: i, j, k, c(3), lo(3), hi(3), a, b, cz, cell, pairs, capacity
+        real(wp) :: r2max, d(3)
+
+        nl%n_query = n_query
+        if (allocated(nl%start)) then
+            if (size(nl%start) < n_query + 1) deallocate(nl%start)
+        end if
+        if (.not. allocated(nl%start)) allocate(nl%start(max(n_query + 1, 1)))
+        capacity = 0
+        if (allocated(nl%index)) capacity = size(nl%index)
+        if (capacity < 1) then
+            capacity = max(64, 40 * n_query)
+            if (allocated(nl%index)) deallocate(nl%index)
+            allocate(nl%index(capacity))
+        end if
+
+        call bin_particles(x, n_total, dim, radius, grid)
+        r2max = radius * radius
+        pairs = 0
+        do i = 1, n_query
+            nl%start(i) = pairs + 1
+            c = cell_coords(grid, x(:, i))
+            lo = 1; hi = 1
+            lo(1:dim) = max(c(1:dim) - 1, 1)
+            hi(1:dim) = min(c(1:dim) + 1, grid%ncell(1:dim))
+            do cz = lo(3), hi(3)
+                do b = lo(2), hi(2)
+                    do a = lo(1), hi(1)
+                        cell = a + grid%ncell(1) * ((b - 1) + grid%ncell(2) * (cz - 1))
+                        do k = grid%cell_start(cell), grid%cell_start(cell + 1) - 1
+                            j = grid%sorted(k)
+                            if (j == i) cycle
+                            d = x(:, i) - x(:, j)
+                            if (d(1)**2 + d(2)**2 + d(3)**2 < r2max) then
+                                pairs = pairs + 1
+                                if (pairs > size(nl%index)) call grow(nl%index, pairs)
+                                nl%index(pairs) = j
+                            end if
+                        end do
+                    end do
+                end do
+            end do
+        end do
+        nl%start(n_query + 1) = pairs + 1
+        nl%n_pairs = pairs
+    end subroutine build_neighbour_list
+
+    subroutine grow(array, needed)
+        integer, allocatable, intent(inout) :: array(:)
+        integer, intent(in) :: needed
+        integer, allocatable :: bigger(:)
+        allocate(bigger(max(needed, 2 * size(array))))
+        bigger(1:size(array)) = array
+        call move_alloc(bigger, array)
+    end subroutine grow
+
+    !> Counting sort of particles into cells of at least `cell_size` covering their bounding box.
+    subroutine bin_particles(x, n, dim, cell_size, grid)
+        real(wp), intent(in) :: x(:, :)
+        integer, intent(in) :: n, dim
+        real(wp), intent(in) :: cell_size
+        type(cell_grid_t), intent(out) :: grid
+        real(wp) :: lo(3), hi(3), size_used
+        integer :: i, ncells, cell
+        integer(8) :: estimate
+        integer, allocatable :: fill(:)
+
+        grid%dim = dim
+        lo = 0.0_wp; hi = 0.0_wp
+        if (n > 0) then
+            lo = minval(x(:, 1:n), dim=2)
+            hi = maxval(x(:, 1:n), dim=2)
+        end if
+        ! a stray far-away particle must not make the grid huge: cap cells at ~4 per particle
+        size_used = cell_size
+        do
+            grid%ncell = 1
+            grid%ncell(1:dim) = max(1, int((hi(1:dim) - lo(1:dim)) / size_used) + 1)
+            estimate = product(int(grid%ncell, 8))
+            if (estimate <= 4_8 * n + 64_8) exit
+            size_used = size_used * 1.5_wp
+        end do
+        grid%origin = lo
+        grid%inv_size = 1.0_wp / size_used
+        ncells = int(estimate)
+        allocate(grid%cell_start(ncells + 1), grid%sorted(max(n, 1)), grid%cell_of(max(n, 1)))
+        allocate(fill(ncells))
+        grid%cell_start = 0
+        do i = 1, n
+            cell = linear_cell(grid, cell_coords(grid, x(:, i)))
+            grid%cell_of(i) = cell
+            grid%cell_start(cell + 1) = grid%cell_start(cell + 1) + 1
+        end do
+        grid%cell_start(1) = 1
+        do cell = 1, ncells
+            grid%cell_start(cell + 1) = grid%cell_start(cell + 1) + grid%cell_start(cell)
+        end do
+        fill = grid%cell_start(1:ncells)
+        do i = 1, n
+            cell = grid%cell_of(i)
+            grid%sorted(fill(cell)) = i
+            fill(cell) = fill(cell) + 1
+        end do
+    end subroutine bin_particles
+
+    pure function cell_coords(grid, xi) result(c)
+        type(cell_grid_t), intent(in) :: grid
+        real(wp), intent(in) :: xi(3)
+        integer :: c(3)
+        c = 1
+        c(1:grid%dim) = int((xi(1:grid%dim) - grid%origin(1:grid%dim)) * grid%inv_size) + 1
+        c(1:grid%dim) = min(max(c(1:grid%dim), 1), grid%ncell(1:grid%dim))
+    end function cell_coords
+
+    pure integer function linear_cell(grid, c)
+        type(cell_grid_t), intent(in) :: grid
+        integer, intent(in) :: c(3)
+        linear_cell = c(1) + grid%ncell(1) * ((c(2) - 1) + grid%ncell(2) * (c(3) - 1))
+    end function linear_cell
+
+    !> Order of the first n particles by cell (then by index): used to store owned particles
+    !> cell by cell, so a neighbour loop walks memory nearly in order.
+    subroutine cell_sort_order(x, n, dim, cell_size, order)
+        real(wp), intent(in) :: x(:, :)
+        integer, intent(in) :: n, dim
+        real(wp), intent(in) :: cell_size
+        integer, intent(out) :: order(:)
+        type(cell_grid_t) :: grid
+        call bin_particles(x, n, dim, cell_size, grid)
+        order(1:n) = grid%sorted(1:n)
+    end subroutine cell_sort_order
+
+    !> Reference O(N^2) search with the same criterion, for tests.
+    subroutine brute_force_neighbours(x, n_total, n_query, radius, nl)
+        real(wp), intent(in) :: x(:, :)
+        integer, intent(in) :: n_total, n_query
+        real(wp), intent(in) :: radius
+        type(neighbour_list_t), intent(out) :: nl
+        integer :: i, j, pairs
+        real(wp) :: d(3)
+        allocate(nl%start(n_query + 1), nl%index(max(64, n_query * n_total)))
+        pairs = 0
+        do i = 1, n_query
+            nl%start(i) = pairs + 1
+            do j = 1, n_total
+                if (j == i) cycle
+                d = x(:, i) - x(:, j)
+                if (d(1)**2 + d(2)**2 + d(3)**2 < radius * radius) then
+                    pairs = pairs + 1
+                    nl%index(pairs) = j
+                end if
+            end do
+        end do
+        nl%start(n_query + 1) = pairs + 1
+        nl%n_query = n_query
+        nl%n_pairs = pairs
+    end subroutine brute_force_neighbours
+end module sph_cell_list

@@ -1,0 +1,358 @@
+!> Domain decomposition by orthogonal recursive bisection (ORB), for any number of ranks in
+!> 2D and 3D. Cuts are placed by particle count (each particle is one unit of work whatever
+!> its resolution level, so a region of fine particles gets proportionally more ranks), and
+!> the tree answers "which rank owns this position" in O(log P). Also particle migration.
+!> Wall faces are open-ended: a subdomain touching a wall extends to infinity there, so wall
+!> particles outside the fluid box belong to the rank next to them.
+module sph_domain
+    use mpi_f08
+    use sph_kinds, only: wp, i8
+    use sph_errors, only: check_mpi, fatal_collective
+    use sph_mpi_env, only: mpi_env_t, mpi_wp, global_sum, global_max
+    use sph_particles, only: particles_t, particles_pack, particles_unpack, particles_reserve, &
+        pack_size
+    implicit none
+    private
+    public :: domain_t, domain_create, domain_partition, domain_owner, domain_wrap
+    public :: migrate_particles, domain_imbalance, far
+
+    real(wp), parameter :: far = 1.0e30_wp   !< "infinite" extent of an open (wall) face
+    integer, parameter :: bisection_steps = 64
+
+    type :: domain_t
+        integer :: dim = 2
+        integer :: nranks = 1
+        integer :: rank = 0
+        real(wp) :: lo(3) = 0.0_wp, hi(3) = 1.0_wp, length(3) = 1.0_wp
+        logical :: periodic(3) = .false.
+        ! ORB tree; node 1 is the root; leaves carry a rank
+        integer :: n_nodes = 0
+        integer, allocatable :: node_axis(:), node_left(:), node_right(:), node_rank(:)
+        real(wp), allocatable :: node_cut(:)
+        ! each rank's subdomain, open (+-far) at wall faces; (3, 0:nranks-1)
+        real(wp), allocatable :: box_lo(:, :), box_hi(:, :)
+    end type domain_t
+
+contains
+
+    !> Geometry only; the first partition splits the box evenly (call domain_partition with
+    !> particles to balance by count).
+    subroutine domain_create(domain, env, dim, lo, hi, periodic)
+        type(domain_t), intent(out) :: domain
+        type(mpi_env_t), intent(in) :: env
+        integer, intent(in) :: dim
+        real(wp), intent(in) :: lo(3), hi(3)
+        logical, intent(in) :: periodic(3)
+        real(wp) :: no_points(3, 0)
+        domain%dim = dim
+        domain%nranks = env%nranks
+        domain%rank = env%rank
+        domain%lo = lo
+        domain%hi = hi
+        domain%length = hi - lo
+        domain%periodic = periodic
+        if (dim == 2) domain%periodic(3) = .false.
+        call domain_partition(domain, env, no_points, 0)
+    end subroutine domain_create
+
+    !> Weighted ORB over the owned positions x(:, 1:n) of every rank (collective).
+    !> With no particles anywhere the box is split geometrically.
+    subroutine domain_partition(domain, env, x, n)
+        type(domain_t), intent(inout) :: domain
+        type(mpi_env_t), intent(in) :: env
+        real(wp), intent(in) :: x(:, :)
+        integer, intent(in) :: n
+        integer :: max_nodes, n_active, k, node, axis, it, i, nl, nr, ierr
+        integer, allocatable :: active(:), next_active(:), rank_lo(:), rank_hi(:), node_of(:)
+        real(wp), allocatable :: nlo(:, :), nhi(:, :), a(:), b(:), c(:), target(:), total(:)
+        real(wp), allocatable :: below(:), below_local(:), local_max(:), local_min(:)
+        real(wp), allocatable :: glob_max(:), glob_min(:)
+        integer(i8) :: total_count
+
+        max_nodes = 2 * domain%nranks + 1
+        if (allocated(domain%node_axis)) then
+            deallocate(domain%node_axis, domain%node_left, domain%node_right, domain%node_rank, &
+                domain%node_cut, domain%box_lo, domain%box_hi)
+        end if
+        allocate(domain%node_axis(max_nodes), domain%node_left(max_nodes), &
+            domain%node_right(max_nodes), domain%node_rank(max_nodes), domain%node_cut(max_nodes))
+        allocate(rank_lo(max_nodes), rank_hi(max_nodes), nlo(3, max_nodes), nhi(3, max_nodes))
+        allocate(node_of(max(n, 1)))
+        domain%node_axis = 0; domain%node_left = 0; domain%node_right = 0
+        domain%node_rank = -1; domain%node_cut = 0.0_wp
+        domain%n_nodes = 1
+        rank_lo(1) = 0; rank_hi(1) = domain%nranks - 1
+        nlo(:, 1) = domain%lo; nhi(:, 1) = domain%hi
+        node_of = 1
+        total_count = global_sum(env, int(n, i8))
+        if (domain%nranks > 1) then
+            active = [1]
+        else
+            allocate(active(0))
+        end if
+        do while (size(active) > 0)
+            n_active = size(active)
+            allocate(a(n_active), b(n_active), c(n_active), target(n_active), total(n_active))
+            allocate(below(n_active), below_local(n_active), local_max(n_active), &
+                local_min(n_active), glob_max(n_active), glob_min(n_active))
+            ! weight of each active node
+            below_local = 0.0_wp
+            do i = 1, n
+                k = findloc(active, node_of(i), dim=1)
+                if (k > 0) below_local(k) = below_local(k) + 1.0_wp
+            end do
+            call MPI_Allreduce(below_local, total, n_active, mpi_wp, MPI_SUM, env%comm, ierr)
+            call check_mpi(ierr, 'domain_partition')
+            do k = 1, n_active
+                node = active(k)
+                axis = maxloc(nhi(1:domain%dim, node) - nlo(1:domain%dim, node), dim=1)
+                domain%node_axis(node) = axis
+                nl = (rank_hi(node) - rank_lo(node) + 1) / 2
+                target(k) = total(k) * real(nl, wp) / real(rank_hi(node) - rank_lo(node) + 1, wp)
+                a(k) = nlo(axis, node)
+                b(k) = nhi(axis, node)
+            end do
+            if (total_count > 0) then
+                ! bisection on the cut: smallest c with weight(x < c) >= target
+                do it = 1, bisection_steps
+                    c = 0.5_wp * (a + b)
+                    call weight_below(c, below)
+                    where (below >= target - 0.5_wp)
+                        b = c
+                    elsewhere
+                        a = c
+                    end where
+                end do
+                c = b
+                ! centre the cut in the gap between the particles on either side of it
+                local_max = -far; local_min = far
+                do i = 1, n
+                    k = findloc(active, node_of(i), dim=1)
+                    if (k == 0) cycle
+                    axis = domain%node_axis(active(k))
+                    if (x(axis, i) < c(k)) then
+                        local_max(k) = max(local_max(k), x(axis, i))
+                    else
+                        local_min(k) = min(local_min(k), x(axis, i))
+                    end if
+                end do
+                call MPI_Allreduce(local_max, glob_max, n_active, mpi_wp, MPI_MAX, env%comm, ierr)
+                call check_mpi(ierr, 'domain_partition')
+                call MPI_Allreduce(local_min, glob_min, n_active, mpi_wp, MPI_MIN, env%comm, ierr)
+                call check_mpi(ierr, 'domain_partition')
+                do k = 1, n_active
+                    if (glob_max(k) > -far .and. glob_min(k) < far) then
+                        c(k) = 0.5_wp * (glob_max(k) + glob_min(k))
+                    end if
+                    if (total(k) < 0.5_wp) c(k) = geometric_cut(k)
+                end do
+            else
+                do k = 1, n_active
+                    c(k) = geometric_cut(k)
+                end do
+            end if
+            ! make the children
+            allocate(next_active(0))
+            do k = 1, n_active
+                node = active(k)
+                axis = domain%node_axis(node)
+                domain%node_cut(node) = c(k)
+                nl = (rank_hi(node) - rank_lo(node) + 1) / 2
+                domain%node_left(node) = domain%n_nodes + 1
+                domain%node_right(node) = domain%n_nodes + 2
+                domain%n_nodes = domain%n_nodes + 2
+                associate (left => domain%node_left(node), right => domain%node_right(node))
+                    rank_lo(left) = rank_lo(node); rank_hi(left) = rank_lo(node) + nl - 1
+                    rank_lo(right) = rank_lo(node) + nl; rank_hi(right) = rank_hi(node)
+                    nlo(:, left) = nlo(:, node); nhi(:, left) = nhi(:, node)
+                    nhi(axis, left) = c(k)
+                    nlo(:, right) = nlo(:, node); nhi(:, right) = nhi(:, node)
+                    nlo(axis, right) = c(k)
+                    if (rank_hi(left) > rank_lo(left)) next_active = [next_active, left]
+                    if (rank_hi(right) > rank_lo(right)) next_active = [next_active, right]
+                end associate
+            end do
+            do i = 1, n
+                k = findloc(active, node_of(i), dim=1)
+                if (k == 0) cycle
+                node = active(k)
+                if (x(domain%node_axis(node), i) < domain%node_cut(node)) then
+                    node_of(i) = domain%node_left(node)
+                else
+                    node_of(i) = domain%node_right(node)
+                end if
+            end do
+            call move_alloc(next_active, active)
+            deallocate(a, b, c, target, total, below, below_local, local_max, local_min, &
+                glob_max, glob_min)
+        end do
+        ! leaves: rank and subdomain box, open at wall faces
+        allocate(domain%box_lo(3, 0:domain%nranks - 1), domain%box_hi(3, 0:domain%nranks - 1))
+        do node = 1, domain%n_nodes
+            if (domain%node_left(node) /= 0) cycle
+            domain%node_rank(node) = rank_lo(node)
+            domain%box_lo(:, rank_lo(node)) = nlo(:, node)
+            domain%box_hi(:, rank_lo(node)) = nhi(:, node)
+            do axis = 1, 3
+                if (domain%periodic(axis)) cycle
+                if (nlo(axis, node) <= domain%lo(axis)) domain%box_lo(axis, rank_lo(node)) = -far
+                if (nhi(axis, node) >= domain%hi(axis)) domain%box_hi(axis, rank_lo(node)) = far
+            end do
+            if (domain%dim == 2) then
+                domain%box_lo(3, rank_lo(node)) = -far
+                domain%box_hi(3, rank_lo(node)) = far
+            end if
+        end do
+
+    contains
+
+        subroutine weight_below(cut, result_weight)
+            real(wp), intent(in) :: cut(:)
+            real(wp), intent(out) :: result_weight(:)
+            integer :: j, kk
+            below_local = 0.0_wp
+            do j = 1, n
+                kk = findloc(active, node_of(j), dim=1)
+                if (kk == 0) cycle
+                if (x(domain%node_axis(active(kk)), j) < cut(kk)) below_local(kk) = below_local(kk) + 1.0_wp
+            end do
+            call MPI_Allreduce(below_local, result_weight, size(cut), mpi_wp, MPI_SUM, env%comm, ierr)
+            call check_mpi(ierr, 'domain_partition')
+        end subroutine weight_below
+
+        real(wp) function geometric_cut(kk)
+            integer, intent(in) :: kk
+            integer :: nd, ax
+            nd = active(kk)
+            ax = domain%node_axis(nd)
+            geometric_cut = nlo(ax, nd) + (nhi(ax, nd) - nlo(ax, nd)) * &
+                real((rank_hi(nd) - rank_lo(nd) + 1) / 2, wp) / real(rank_hi(nd) - rank_lo(nd) + 1, wp)
+        end function geometric_cut
+    end subroutine domain_partition
+
+    !> The rank owning a (wrapped) position.
+    pure integer function domain_owner(domain, xi)
+        type(domain_t), intent(in) :: domain
+        real(wp), intent(in) :: xi(3)
+        integer :: node
+        node = 1
+        do while (domain%node_left(node) /= 0)
+            if (xi(domain%node_axis(node)) < domain%node_cut(node)) then
+                node = domain%node_left(node)
+            else
+                node = domain%node_right(node)
+            end if
+        end do
+        domain_owner = domain%node_rank(node)
+    end function domain_owner
+
+    !> Map a position into the box along periodic axes.
+    pure subroutine domain_wrap(domain, xi)
+        type(domain_t), intent(in) :: domain
+        real(wp), intent(inout) :: xi(3)
+        integer :: axis
+        do axis = 1, domain%dim
+            if (.not. domain%periodic(axis)) cycle
+            if (xi(axis) < domain%lo(axis) .or. xi(axis) >= domain%hi(axis)) then
+                xi(axis) = domain%lo(axis) + modulo(xi(axis) - domain%lo(axis), domain%length(axis))
+                ! modulo can round up to exactly length
+                if (xi(axis) >= domain%hi(axis)) xi(axis) = domain%lo(axis)
+            end if
+        end do
+    end subroutine domain_wrap
+
+    !> max(owned) / mean(owned) over ranks (1 = perfect balance).
+    real(wp) function domain_imbalance(env, n_owned)
+        type(mpi_env_t), intent(in) :: env
+        integer, intent(in) :: n_owned
+        real(wp) :: total, biggest
+        total = global_sum(env, real(n_owned, wp))
+        biggest = global_max(env, real(n_owned, wp))
+        if (total > 0.0_wp) then
+            domain_imbalance = biggest / (total / env%nranks)
+        else
+            domain_imbalance = 1.0_wp
+        end if
+    end function domain_imbalance
+
+    !> Send every owned particle that left this rank's subdomain to its owner (periodic faces
+    !> included: positions are wrapped first). Ghosts are dropped. The global count is checked.
+    subroutine migrate_particles(domain, env, p)
+        type(domain_t), intent(in) :: domain
+        type(mpi_env_t), intent(in) :: env
+        type(particles_t), intent(inout) :: p
+        integer, allocatable :: dest(:), send_count(:), recv_count(:), send_disp(:), recv_disp(:)
+        integer, allocatable :: fill(:), all_counts(:, :)
+        real(wp), allocatable :: send_buf(:, :), recv_buf(:, :)
+        integer :: i, r, kept, n_send, n_recv, ierr, counts(4)
+        integer(i8) :: before, after
+        character(len=:), allocatable :: culprits
+        character(len=64) :: item
+
+        before = global_sum(env, int(p%n_owned, i8))
+        p%n_ghost = 0
+        p%n_total = p%n_owned
+        allocate(dest(p%n_owned), send_count(0:env%nranks - 1), recv_count(0:env%nranks - 1))
+        allocate(send_disp(0:env%nranks - 1), recv_disp(0:env%nranks - 1), fill(0:env%nranks - 1))
+        send_count = 0
+        do i = 1, p%n_owned
+            call domain_wrap(domain, p%x(:, i))
+            dest(i) = domain_owner(domain, p%x(:, i))
+            if (dest(i) /= env%rank) send_count(dest(i)) = send_count(dest(i)) + 1
+        end do
+        call MPI_Alltoall(send_count, 1, MPI_INTEGER, recv_count, 1, MPI_INTEGER, env%comm, ierr)
+        call check_mpi(ierr, 'migrate_particles counts')
+        n_send = sum(send_count)
+        n_recv = sum(recv_count)
+        send_disp(0) = 0; recv_disp(0) = 0
+        do r = 1, env%nranks - 1
+            send_disp(r) = send_disp(r - 1) + send_count(r - 1)
+            recv_disp(r) = recv_disp(r - 1) + recv_count(r - 1)
+        end do
+        allocate(send_buf(pack_size, max(n_send, 1)), recv_buf(pack_size, max(n_recv, 1)))
+        fill = send_disp
+        kept = 0
+        do i = 1, p%n_owned
+            if (dest(i) /= env%rank) then
+                fill(dest(i)) = fill(dest(i)) + 1
+                call particles_pack(p, i, send_buf(:, fill(dest(i))))
+            else
+                kept = kept + 1
+                if (kept /= i) call move_particle(i, kept)
+            end if
+        end do
+        call MPI_Alltoallv(send_buf, send_count * pack_size, send_disp * pack_size, mpi_wp, &
+            recv_buf, recv_count * pack_size, recv_disp * pack_size, mpi_wp, env%comm, ierr)
+        call check_mpi(ierr, 'migrate_particles data')
+        call particles_reserve(p, kept + n_recv)
+        do i = 1, n_recv
+            call particles_unpack(p, kept + i, recv_buf(:, i))
+        end do
+        counts = [p%n_owned, n_send, n_recv, kept + n_recv]
+        p%n_owned = kept + n_recv
+        p%n_total = p%n_owned
+        after = global_sum(env, int(p%n_owned, i8))
+        if (after /= before) then
+            allocate(all_counts(4, 0:env%nranks - 1))
+            call MPI_Allgather(counts, 4, MPI_INTEGER, all_counts, 4, MPI_INTEGER, env%comm, ierr)
+            call check_mpi(ierr, 'migrate_particles check')
+            culprits = ''
+            do r = 0, env%nranks - 1
+                write(item, '(a,i0,a,i0,a,i0,a,i0,a,i0,a)') ' rank ', r, ' (had ', all_counts(1, r), &
+                    ', sent ', all_counts(2, r), ', received ', all_counts(3, r), ', now ', &
+                    all_counts(4, r), ')'
+                culprits = culprits // trim(item)
+            end do
+            write(item, '(i0,a,i0)') before, ' -> ', after
+            call fatal_collective('migrate_particles', 'global particle count changed ' // &
+                trim(item) // ':' // culprits)
+        end if
+    contains
+        subroutine move_particle(from, to)
+            integer, intent(in) :: from, to
+            real(wp) :: buffer(pack_size)
+            call particles_pack(p, from, buffer)
+            call particles_unpack(p, to, buffer)
+        end subroutine move_particle
+    end subroutine migrate_particles
+end module sph_domain

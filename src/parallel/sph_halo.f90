@@ -1,0 +1,286 @@
+!> Halo exchange: ghost copies of every owned particle within `reach` of another subdomain,
+!> for other ranks and for this rank's own periodic images alike (a rank can be its own
+!> neighbour across a periodic face). Built in two halves (start: counts, post receives and
+!> sends; finish: wait and unpack), and refreshed in place (same ghosts, current fields) at
+!> the stages of a time step where the physics needs up-to-date neighbours.
+module sph_halo
+    use mpi_f08
+    use sph_kinds, only: wp
+    use sph_errors, only: check_mpi
+    use sph_mpi_env, only: mpi_env_t, mpi_wp
+    use sph_domain, only: domain_t, far
+    use sph_particles, only: particles_t, particles_pack, particles_unpack, particles_reserve, &
+        pack_size
+    implicit none
+    private
+    public :: halo_t, halo_setup, halo_build_start, halo_build_finish, halo_build
+    public :: halo_refresh_start, halo_refresh_finish, halo_refresh
+
+    integer, parameter :: tag_count = 101, tag_data = 102
+
+    type :: halo_t
+        real(wp) :: reach = 0.0_wp
+        ! (rank, periodic shift) pairs whose region this rank's particles may reach
+        integer :: n_partners = 0
+        integer, allocatable :: partner_rank(:)
+        real(wp), allocatable :: partner_shift(:, :)
+        ! distinct ranks exchanged with (symmetric: send to r <=> receive from r)
+        integer :: n_peers = 0
+        integer, allocatable :: peer_rank(:)
+        ! send list, grouped by peer: particle index and shift to apply
+        integer, allocatable :: send_count(:), send_offset(:)
+        integer, allocatable :: send_index(:)
+        real(wp), allocatable :: send_shift(:, :)
+        integer, allocatable :: recv_count(:), recv_offset(:)
+        ! in-flight exchange
+        real(wp), allocatable :: send_buf(:, :), recv_buf(:, :)
+        type(MPI_Request), allocatable :: requests(:)
+        integer :: n_requests = 0
+    end type halo_t
+
+contains
+
+    !> Which (rank, shift) regions this rank's particles can reach: recomputed whenever the
+    !> decomposition changes. reach = kernel support plus a skin for motion within a step.
+    subroutine halo_setup(halo, domain, reach)
+        type(halo_t), intent(inout) :: halo
+        type(domain_t), intent(in) :: domain
+        real(wp), intent(in) :: reach
+        integer :: r, sx, sy, sz, n, k, smax(3)
+        real(wp) :: shift(3)
+        integer, allocatable :: ranks(:)
+        real(wp), allocatable :: shifts(:, :)
+
+        halo%reach = reach
+        smax = 0
+        do k = 1, domain%dim
+            if (domain%periodic(k)) smax(k) = 1
+        end do
+        allocate(ranks(0), shifts(3, 0))
+        do r = 0, domain%nranks - 1
+            do sz = -smax(3), smax(3)
+                do sy = -smax(2), smax(2)
+                    do sx = -smax(1), smax(1)
+                        if (r == domain%rank .and. sx == 0 .and. sy == 0 .and. sz == 0) cycle
+                        shift = [sx, sy, sz] * domain%length
+                        if (boxes_touch(domain%box_lo(:, domain%rank) + shift, &
+                                        domain%box_hi(:, domain%rank) + shift, &
+                                        domain%box_lo(:, r) - reach, domain%box_hi(:, r) + reach)) then
+                            ranks = [ranks, r]
+                            shifts = reshape([shifts, shift], [3, size(ranks)])
+                        end if
+                    end do
+                end do
+            end do
+        end do
+        halo%n_partners = size(ranks)
+        call move_alloc(ranks, halo%partner_rank)
+        call move_alloc(shifts, halo%partner_shift)
+        ! distinct peers in rank order
+        if (allocated(halo%peer_rank)) deallocate(halo%peer_rank)
+        allocate(halo%peer_rank(0))
+        do r = 0, domain%nranks - 1
+            if (any(halo%partner_rank == r)) halo%peer_rank = [halo%peer_rank, r]
+        end do
+        n = size(halo%peer_rank)
+        halo%n_peers = n
+        if (allocated(halo%send_count)) deallocate(halo%send_count, halo%send_offset, &
+            halo%recv_count, halo%recv_offset)
+        allocate(halo%send_count(n), halo%send_offset(n + 1), halo%recv_count(n), &
+            halo%recv_offset(n + 1))
+        if (allocated(halo%requests)) deallocate(halo%requests)
+        allocate(halo%requests(2 * n))
+    end subroutine halo_setup
+
+    pure logical function boxes_touch(alo, ahi, blo, bhi)
+        real(wp), intent(in) :: alo(3), ahi(3), blo(3), bhi(3)
+        boxes_touch = all(alo <= bhi .and. blo <= ahi)
+    end function boxes_touch
+
+    !> Select ghosts among the owned particles and exchange counts, then post the data.
+    subroutine halo_build_start(halo, domain, env, p)
+        type(halo_t), intent(inout) :: halo
+        type(domain_t), intent(in) :: domain
+        type(mpi_env_t), intent(in) :: env
+        type(particles_t), intent(inout) :: p
+        integer :: i, k, q, peer, total, ierr
+        integer, allocatable :: fill(:), peer_of_partner(:)
+        real(wp) :: xs(3), lo(3), hi(3)
+
+        p%n_ghost = 0
+        p%n_total = p%n_owned
+        allocate(peer_of_partner(halo%n_partners))
+        do k = 1, halo%n_partners
+            peer_of_partner(k) = findloc(halo%peer_rank, halo%partner_rank(k), dim=1)
+        end do
+        ! pass 1: count, pass 2: fill (kept in peer order so the receiver's slots are stable)
+        halo%send_count = 0
+        do i = 1, p%n_owned
+            do k = 1, halo%n_partners
+                if (reaches(i, k)) then
+                    q = peer_of_partner(k)
+                    halo%send_count(q) = halo%send_count(q) + 1
+                end if
+            end do
+        end do
+        halo%send_offset(1) = 0
+        do q = 1, halo%n_peers
+            halo%send_offset(q + 1) = halo%send_offset(q) + halo%send_count(q)
+        end do
+        total = halo%send_offset(halo%n_peers + 1)
+        if (allocated(halo%send_index)) then
+            if (size(halo%send_index) < total) deallocate(halo%send_index, halo%send_shift)
+        end if
+        if (.not. allocated(halo%send_index)) allocate(halo%send_index(max(total, 1)), &
+            halo%send_shift(3, max(total, 1)))
+        allocate(fill(halo%n_peers))
+        fill = halo%send_offset(1:halo%n_peers)
+        do i = 1, p%n_owned
+            do k = 1, halo%n_partners
+                if (reaches(i, k)) then
+                    q = peer_of_partner(k)
+                    fill(q) = fill(q) + 1
+                    halo%send_index(fill(q)) = i
+                    halo%send_shift(:, fill(q)) = halo%partner_shift(:, k)
+                end if
+            end do
+        end do
+        ! counts: small blocking exchange, the receiver needs them to size its slots
+        halo%n_requests = 0
+        do q = 1, halo%n_peers
+            peer = halo%peer_rank(q)
+            halo%n_requests = halo%n_requests + 1
+            call MPI_Irecv(halo%recv_count(q), 1, MPI_INTEGER, peer, tag_count, env%comm, &
+                halo%requests(halo%n_requests), ierr)
+            call check_mpi(ierr, 'halo counts irecv')
+        end do
+        do q = 1, halo%n_peers
+            peer = halo%peer_rank(q)
+            halo%n_requests = halo%n_requests + 1
+            call MPI_Isend(halo%send_count(q), 1, MPI_INTEGER, peer, tag_count, env%comm, &
+                halo%requests(halo%n_requests), ierr)
+            call check_mpi(ierr, 'halo counts isend')
+        end do
+        call MPI_Waitall(halo%n_requests, halo%requests, MPI_STATUSES_IGNORE, ierr)
+        call check_mpi(ierr, 'halo counts wait')
+        halo%recv_offset(1) = 0
+        do q = 1, halo%n_peers
+            halo%recv_offset(q + 1) = halo%recv_offset(q) + halo%recv_count(q)
+        end do
+        call post_data(halo, env, p)
+    contains
+        logical function reaches(ii, kk)
+            integer, intent(in) :: ii, kk
+            integer :: r
+            r = halo%partner_rank(kk)
+            xs = p%x(:, ii) + halo%partner_shift(:, kk)
+            lo = domain%box_lo(:, r) - halo%reach
+            hi = domain%box_hi(:, r) + halo%reach
+            reaches = all(xs(1:domain%dim) >= lo(1:domain%dim) .and. xs(1:domain%dim) <= hi(1:domain%dim))
+            if (reaches .and. r == domain%rank) then
+                ! an image in this rank's own region but outside its box is still a ghost;
+                ! the image of a particle onto itself (zero shift) never is
+                reaches = any(abs(halo%partner_shift(:, kk)) > 0.0_wp)
+            end if
+        end function reaches
+    end subroutine halo_build_start
+
+    !> Pack the send list with the current fields (shift applied) and post receives and sends.
+    subroutine post_data(halo, env, p)
+        type(halo_t), intent(inout) :: halo
+        type(mpi_env_t), intent(in) :: env
+        type(particles_t), intent(in) :: p
+        integer :: q, k, n_send, n_recv, ierr, peer
+        n_send = halo%send_offset(halo%n_peers + 1)
+        n_recv = halo%recv_offset(halo%n_peers + 1)
+        if (allocated(halo%send_buf)) then
+            if (size(halo%send_buf, 2) < n_send) deallocate(halo%send_buf)
+        end if
+        if (.not. allocated(halo%send_buf)) allocate(halo%send_buf(pack_size, max(n_send, 1)))
+        if (allocated(halo%recv_buf)) then
+            if (size(halo%recv_buf, 2) < n_recv) deallocate(halo%recv_buf)
+        end if
+        if (.not. allocated(halo%recv_buf)) allocate(halo%recv_buf(pack_size, max(n_recv, 1)))
+        do k = 1, n_send
+            call particles_pack(p, halo%send_index(k), halo%send_buf(:, k))
+            halo%send_buf(1:3, k) = halo%send_buf(1:3, k) + halo%send_shift(:, k)
+            halo%send_buf(17:19, k) = halo%send_buf(17:19, k) + halo%send_shift(:, k)
+        end do
+        halo%n_requests = 0
+        do q = 1, halo%n_peers
+            if (halo%recv_count(q) == 0) cycle
+            peer = halo%peer_rank(q)
+            halo%n_requests = halo%n_requests + 1
+            call MPI_Irecv(halo%recv_buf(1, halo%recv_offset(q) + 1), &
+                pack_size * halo%recv_count(q), mpi_wp, peer, tag_data, env%comm, &
+                halo%requests(halo%n_requests), ierr)
+            call check_mpi(ierr, 'halo data irecv')
+        end do
+        do q = 1, halo%n_peers
+            if (halo%send_count(q) == 0) cycle
+            peer = halo%peer_rank(q)
+            halo%n_requests = halo%n_requests + 1
+            call MPI_Isend(halo%send_buf(1, halo%send_offset(q) + 1), &
+                pack_size * halo%send_count(q), mpi_wp, peer, tag_data, env%comm, &
+                halo%requests(halo%n_requests), ierr)
+            call check_mpi(ierr, 'halo data isend')
+        end do
+    end subroutine post_data
+
+    !> Wait for the data and store the ghosts after the owned particles.
+    subroutine halo_build_finish(halo, p)
+        type(halo_t), intent(inout) :: halo
+        type(particles_t), intent(inout) :: p
+        integer :: n_recv
+        n_recv = halo%recv_offset(halo%n_peers + 1)
+        call particles_reserve(p, p%n_owned + n_recv)
+        call wait_and_unpack(halo, p)
+        p%n_ghost = n_recv
+        p%n_total = p%n_owned + n_recv
+    end subroutine halo_build_finish
+
+    subroutine wait_and_unpack(halo, p)
+        type(halo_t), intent(inout) :: halo
+        type(particles_t), intent(inout) :: p
+        integer :: k, ierr
+        call MPI_Waitall(halo%n_requests, halo%requests, MPI_STATUSES_IGNORE, ierr)
+        call check_mpi(ierr, 'halo data wait')
+        halo%n_requests = 0
+        do k = 1, halo%recv_offset(halo%n_peers + 1)
+            call particles_unpack(p, p%n_owned + k, halo%recv_buf(:, k))
+        end do
+    end subroutine wait_and_unpack
+
+    subroutine halo_build(halo, domain, env, p)
+        type(halo_t), intent(inout) :: halo
+        type(domain_t), intent(in) :: domain
+        type(mpi_env_t), intent(in) :: env
+        type(particles_t), intent(inout) :: p
+        call halo_build_start(halo, domain, env, p)
+        call halo_build_finish(halo, p)
+    end subroutine halo_build
+
+    !> Same ghosts, current values: used within a step, when particles have moved much less
+    !> than the skin. Virtual copies beyond the ghosts (mirrors) are dropped.
+    subroutine halo_refresh_start(halo, env, p)
+        type(halo_t), intent(inout) :: halo
+        type(mpi_env_t), intent(in) :: env
+        type(particles_t), intent(inout) :: p
+        p%n_total = p%n_owned + p%n_ghost
+        call post_data(halo, env, p)
+    end subroutine halo_refresh_start
+
+    subroutine halo_refresh_finish(halo, p)
+        type(halo_t), intent(inout) :: halo
+        type(particles_t), intent(inout) :: p
+        call wait_and_unpack(halo, p)
+    end subroutine halo_refresh_finish
+
+    subroutine halo_refresh(halo, env, p)
+        type(halo_t), intent(inout) :: halo
+        type(mpi_env_t), intent(in) :: env
+        type(particles_t), intent(inout) :: p
+        call halo_refresh_start(halo, env, p)
+        call halo_refresh_finish(halo, p)
+    end subroutine halo_refresh
+end module sph_halo

@@ -1,0 +1,195 @@
+!> The project communicator and the thin wrapper for reductions and broadcasts that the rest
+!> of the code uses instead of calling MPI directly.
+module sph_mpi_env
+    use mpi_f08
+    use sph_kinds, only: wp, i8
+    use sph_errors, only: check_mpi, set_error_comm
+    implicit none
+    private
+    public :: mpi_env_t, mpi_env_init_world, mpi_env_from_comm, mpi_env_free, mpi_env_split
+    public :: global_sum, global_max, global_min, broadcast_text, exclusive_scan_i8
+    public :: mpi_wp, mpi_i8
+
+    type(MPI_Datatype), parameter :: mpi_wp = MPI_DOUBLE_PRECISION  !< matches sph_kinds%wp
+    type(MPI_Datatype), parameter :: mpi_i8 = MPI_INTEGER8          !< matches sph_kinds%i8
+
+    !> A communicator and this process's place in it.
+    type :: mpi_env_t
+        type(MPI_Comm) :: comm
+        integer :: rank = 0
+        integer :: nranks = 1
+        logical :: owns_comm = .false.
+    end type mpi_env_t
+
+    interface global_sum
+        module procedure global_sum_wp, global_sum_i8, global_sum_wp_array, global_sum_i8_array
+    end interface
+    interface global_max
+        module procedure global_max_wp, global_max_i8
+    end interface
+    interface global_min
+        module procedure global_min_wp
+    end interface
+
+contains
+
+    !> Initialise MPI and duplicate the world communicator into the project communicator.
+    subroutine mpi_env_init_world(env)
+        type(mpi_env_t), intent(out) :: env
+        integer :: ierr
+        logical :: initialized
+        call MPI_Initialized(initialized, ierr)
+        if (.not. initialized) then
+            call MPI_Init(ierr)
+            call check_mpi(ierr, 'mpi_env_init_world')
+        end if
+        call MPI_Comm_dup(MPI_COMM_WORLD, env%comm, ierr)
+        call check_mpi(ierr, 'mpi_env_init_world')
+        env%owns_comm = .true.
+        call fill_rank(env)
+        call set_error_comm(env%comm)
+    end subroutine mpi_env_init_world
+
+    !> Wrap a communicator handed in by the caller (tests use their sub-communicators).
+    subroutine mpi_env_from_comm(env, comm)
+        type(mpi_env_t), intent(out) :: env
+        type(MPI_Comm), intent(in) :: comm
+        integer :: ierr
+        call MPI_Comm_dup(comm, env%comm, ierr)
+        call check_mpi(ierr, 'mpi_env_from_comm')
+        env%owns_comm = .true.
+        call fill_rank(env)
+    end subroutine mpi_env_from_comm
+
+    !> Ranks with the same colour form a new environment; colour < 0 gets none (member false).
+    subroutine mpi_env_split(env, colour, sub, member)
+        type(mpi_env_t), intent(in) :: env
+        integer, intent(in) :: colour
+        type(mpi_env_t), intent(out) :: sub
+        logical, intent(out) :: member
+        integer :: ierr
+        if (colour >= 0) then
+            call MPI_Comm_split(env%comm, colour, env%rank, sub%comm, ierr)
+        else
+            call MPI_Comm_split(env%comm, MPI_UNDEFINED, env%rank, sub%comm, ierr)
+        end if
+        call check_mpi(ierr, 'mpi_env_split')
+        member = colour >= 0
+        if (member) then
+            sub%owns_comm = .true.
+            call fill_rank(sub)
+        end if
+    end subroutine mpi_env_split
+
+    subroutine fill_rank(env)
+        type(mpi_env_t), intent(inout) :: env
+        integer :: ierr
+        call MPI_Comm_rank(env%comm, env%rank, ierr)
+        call check_mpi(ierr, 'mpi_env rank')
+        call MPI_Comm_size(env%comm, env%nranks, ierr)
+        call check_mpi(ierr, 'mpi_env size')
+    end subroutine fill_rank
+
+    subroutine mpi_env_free(env)
+        type(mpi_env_t), intent(inout) :: env
+        integer :: ierr
+        if (env%owns_comm) then
+            call MPI_Comm_free(env%comm, ierr)
+            call check_mpi(ierr, 'mpi_env_free')
+            env%owns_comm = .false.
+        end if
+    end subroutine mpi_env_free
+
+    function global_sum_wp(env, x) result(s)
+        type(mpi_env_t), intent(in) :: env
+        real(wp), intent(in) :: x
+        real(wp) :: s
+        integer :: ierr
+        call MPI_Allreduce(x, s, 1, mpi_wp, MPI_SUM, env%comm, ierr)
+        call check_mpi(ierr, 'global_sum')
+    end function global_sum_wp
+
+    function global_sum_i8(env, x) result(s)
+        type(mpi_env_t), intent(in) :: env
+        integer(i8), intent(in) :: x
+        integer(i8) :: s
+        integer :: ierr
+        call MPI_Allreduce(x, s, 1, mpi_i8, MPI_SUM, env%comm, ierr)
+        call check_mpi(ierr, 'global_sum')
+    end function global_sum_i8
+
+    function global_sum_wp_array(env, x) result(s)
+        type(mpi_env_t), intent(in) :: env
+        real(wp), intent(in) :: x(:)
+        real(wp) :: s(size(x))
+        integer :: ierr
+        call MPI_Allreduce(x, s, size(x), mpi_wp, MPI_SUM, env%comm, ierr)
+        call check_mpi(ierr, 'global_sum')
+    end function global_sum_wp_array
+
+    function global_sum_i8_array(env, x) result(s)
+        type(mpi_env_t), intent(in) :: env
+        integer(i8), intent(in) :: x(:)
+        integer(i8) :: s(size(x))
+        integer :: ierr
+        call MPI_Allreduce(x, s, size(x), mpi_i8, MPI_SUM, env%comm, ierr)
+        call check_mpi(ierr, 'global_sum')
+    end function global_sum_i8_array
+
+    function global_max_wp(env, x) result(s)
+        type(mpi_env_t), intent(in) :: env
+        real(wp), intent(in) :: x
+        real(wp) :: s
+        integer :: ierr
+        call MPI_Allreduce(x, s, 1, mpi_wp, MPI_MAX, env%comm, ierr)
+        call check_mpi(ierr, 'global_max')
+    end function global_max_wp
+
+    function global_max_i8(env, x) result(s)
+        type(mpi_env_t), intent(in) :: env
+        integer(i8), intent(in) :: x
+        integer(i8) :: s
+        integer :: ierr
+        call MPI_Allreduce(x, s, 1, mpi_i8, MPI_MAX, env%comm, ierr)
+        call check_mpi(ierr, 'global_max')
+    end function global_max_i8
+
+    function global_min_wp(env, x) result(s)
+        type(mpi_env_t), intent(in) :: env
+        real(wp), intent(in) :: x
+        real(wp) :: s
+        integer :: ierr
+        call MPI_Allreduce(x, s, 1, mpi_wp, MPI_MIN, env%comm, ierr)
+        call check_mpi(ierr, 'global_min')
+    end function global_min_wp
+
+    !> Exclusive prefix sum (rank 0 gets 0): offsets of each rank's rows in a global dataset.
+    function exclusive_scan_i8(env, x) result(s)
+        type(mpi_env_t), intent(in) :: env
+        integer(i8), intent(in) :: x
+        integer(i8) :: s
+        integer :: ierr
+        call MPI_Exscan(x, s, 1, mpi_i8, MPI_SUM, env%comm, ierr)
+        call check_mpi(ierr, 'exclusive_scan')
+        if (env%rank == 0) s = 0
+    end function exclusive_scan_i8
+
+    !> Broadcast a deferred-length string from rank 0 (its length is sent first).
+    subroutine broadcast_text(env, text)
+        type(mpi_env_t), intent(in) :: env
+        character(len=:), allocatable, intent(inout) :: text
+        integer :: n, ierr
+        n = 0
+        if (env%rank == 0) n = len(text)
+        call MPI_Bcast(n, 1, MPI_INTEGER, 0, env%comm, ierr)
+        call check_mpi(ierr, 'broadcast_text')
+        if (env%rank /= 0) then
+            if (allocated(text)) deallocate(text)
+            allocate(character(len=n) :: text)
+        end if
+        if (n > 0) then
+            call MPI_Bcast(text, n, MPI_CHARACTER, 0, env%comm, ierr)
+            call check_mpi(ierr, 'broadcast_text')
+        end if
+    end subroutine broadcast_text
+end module sph_mpi_env

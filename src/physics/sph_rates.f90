@@ -1,0 +1,261 @@
+!> The SPH right-hand sides (thesis ch. 2, with Morris et al. 1997 for low Reynolds number):
+!>   continuity   d rho_i/dt = sum_j m_j v_ij . grad_i W_ij
+!>   momentum     d v_i/dt   = - sum_j m_j (p_i/rho_i^2 + p_j/rho_j^2) grad_i W_ij + viscous + F
+!>   energy       d e_i/dt   = 1/2 sum_j m_j (p_i/rho_i^2 + p_j/rho_j^2) v_ij . grad_i W_ij
+!>                             + viscous heating
+!> Viscous term: Morris' laminar form
+!>   sum_j m_j (mu_i + mu_j) r_ij . grad_i W_ij / (rho_i rho_j (r_ij^2 + 0.01 h^2)) v_ij
+!> or the strain-rate form of thesis eqs. 2.15-2.16 (with the index typos corrected: the
+!> stress divergence contracts grad W over beta, and v_ji multiplies grad W in eq. 2.16).
+!> Printed eq. 2.14 carries a stray rho_i and 2.17 lacks v_ij; the forms above are the
+!> standard, dimensionally consistent ones.
+!> Loops run over the owned particles i with neighbours j among owned, ghost and mirror
+!> particles. Every pair term is antisymmetric in i and j, so momentum is conserved to
+!> round-off. No MPI here: the driver refreshes ghosts between the stages.
+module sph_rates
+    use sph_kinds, only: wp
+    use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL
+    use sph_cell_list, only: neighbour_list_t
+    use sph_physics, only: physics_t, VISCOSITY_MORRIS, VISCOSITY_STRAIN_RATE, WALLS_MORRIS, &
+        WALLS_REPULSIVE, WALLS_REPULSIVE_MIRROR
+    use sph_eos, only: eos_pressure
+    implicit none
+    private
+    public :: update_pressure, compute_summation_density, compute_strain_rate, compute_rates
+    public :: local_max_speed, local_max_acceleration, morris_beta
+
+    !> strain(6) components: xx, yy, zz, xy, xz, yz
+    integer, parameter :: voigt(3, 3) = reshape([1, 4, 5, 4, 2, 6, 5, 6, 3], [3, 3])
+
+contains
+
+    !> Pressure from density by the equation of state, for particles first..last.
+    subroutine update_pressure(phys, p, first, last)
+        type(physics_t), intent(in) :: phys
+        type(particles_t), intent(inout) :: p
+        integer, intent(in) :: first, last
+        p%p(first:last) = eos_pressure(phys%eos, p%rho(first:last), phys%rho0, phys%c, phys%gamma)
+    end subroutine update_pressure
+
+    !> Type-1 boundary particles only repel; they take no part in the SPH sums.
+    pure logical function repulsive_only(phys, kind_j)
+        type(physics_t), intent(in) :: phys
+        integer, intent(in) :: kind_j
+        repulsive_only = kind_j == KIND_WALL .and. (phys%walls == WALLS_REPULSIVE .or. &
+            phys%walls == WALLS_REPULSIVE_MIRROR)
+    end function repulsive_only
+
+    !> Morris' factor for the wall particle's extrapolated velocity: the relative velocity used
+    !> in the viscous term is beta (v_i - v_wall), beta = min(beta_max, 1 + d_wall / d_fluid).
+    pure real(wp) function morris_beta(d_fluid, d_wall, beta_max)
+        real(wp), intent(in) :: d_fluid, d_wall, beta_max
+        if (d_fluid > 0.0_wp) then
+            morris_beta = min(beta_max, 1.0_wp + d_wall / d_fluid)
+        else
+            morris_beta = beta_max
+        end if
+    end function morris_beta
+
+    !> Distance of point xi in front of the wall plane of wall particle j.
+    pure real(wp) function distance_to_wall(p, xi, j)
+        type(particles_t), intent(in) :: p
+        real(wp), intent(in) :: xi(3)
+        integer, intent(in) :: j
+        distance_to_wall = dot_product(p%wall_normal(:, j), xi - p%x(:, j)) - p%wall_distance(j)
+    end function distance_to_wall
+
+    !> rho_i = sum_j m_j W_ij (self included) for owned fluid particles; walls keep theirs.
+    subroutine compute_summation_density(phys, p, nl)
+        type(physics_t), intent(in) :: phys
+        type(particles_t), intent(inout) :: p
+        type(neighbour_list_t), intent(in) :: nl
+        integer :: i, k, j
+        real(wp) :: s, d(3)
+        do i = 1, p%n_owned
+            if (p%kind(i) /= KIND_FLUID) cycle
+            s = p%m(i) * phys%kernel%w(0.0_wp)
+            do k = nl%start(i), nl%start(i + 1) - 1
+                j = nl%index(k)
+                if (repulsive_only(phys, p%kind(j))) cycle
+                d = p%x(:, i) - p%x(:, j)
+                s = s + p%m(j) * phys%kernel%w(norm2(d))
+            end do
+            p%rho(i) = s
+        end do
+    end subroutine compute_summation_density
+
+    !> Strain rate (thesis eq. 2.16, corrected) of owned particles:
+    !> eps^ab = sum_j m_j/rho_j (v_ji^b dW/dx^a + v_ji^a dW/dx^b) - 2/3 delta^ab sum_j m_j/rho_j v_ji . grad W
+    !> (the 2/3 of a three-dimensional fluid is kept in 2D: plane flow of a real fluid).
+    subroutine compute_strain_rate(phys, p, nl)
+        type(physics_t), intent(in) :: phys
+        type(particles_t), intent(inout) :: p
+        type(neighbour_list_t), intent(in) :: nl
+        integer :: i, k, j, a, b
+        real(wp) :: d(3), r, grad(3), vji(3), g(3, 3), div, beta
+        do i = 1, p%n_owned
+            g = 0.0_wp
+            do k = nl%start(i), nl%start(i + 1) - 1
+                j = nl%index(k)
+                if (repulsive_only(phys, p%kind(j))) cycle
+                d = p%x(:, i) - p%x(:, j)
+                r = norm2(d)
+                if (r <= 0.0_wp) cycle
+                grad = d / r * phys%kernel%dwdr(r)
+                vji = p%v(:, j) - p%v(:, i)
+                if (p%kind(j) == KIND_WALL .and. p%kind(i) == KIND_FLUID .and. &
+                    phys%walls == WALLS_MORRIS) then
+                    beta = morris_beta(distance_to_wall(p, p%x(:, i), j), p%wall_distance(j), &
+                        phys%beta_max)
+                    vji = -beta * (p%v(:, i) - p%v(:, j))
+                end if
+                do b = 1, 3
+                    g(:, b) = g(:, b) + p%m(j) / p%rho(j) * vji(b) * grad(:)
+                end do
+            end do
+            ! g(a, b) = sum m/rho v^b dW/dx^a
+            div = g(1, 1) + g(2, 2) + g(3, 3)
+            do b = 1, 3
+                do a = b, 3
+                    p%strain(voigt(a, b), i) = g(a, b) + g(b, a)
+                end do
+                p%strain(b, i) = p%strain(b, i) - 2.0_wp / 3.0_wp * div
+            end do
+        end do
+    end subroutine compute_strain_rate
+
+    !> d rho/dt, d v/dt and d e/dt of every owned particle.
+    subroutine compute_rates(phys, p, nl)
+        type(physics_t), intent(in) :: phys
+        type(particles_t), intent(inout) :: p
+        type(neighbour_list_t), intent(in) :: nl
+        integer :: i, k, j, a
+        real(wp) :: d(3), r2, r, dwdr, grad(3), vij(3), vvisc(3), pterm, coeff, beta
+        real(wp) :: drho, dv(3), de, rho_i, p_i, mu_i, q, sterm(3), eps_i(3, 3), eps_j(3, 3)
+        real(wp) :: support2
+
+        support2 = phys%kernel%support**2
+
+        do i = 1, p%n_owned
+            p%drhodt(i) = 0.0_wp
+            p%dvdt(:, i) = 0.0_wp
+            p%dedt(i) = 0.0_wp
+            select case (p%kind(i))
+            case (KIND_WALL)
+                if (phys%walls == WALLS_MORRIS) call wall_density_rate(i)
+                cycle
+            case (KIND_FLUID)
+            case default
+                cycle
+            end select
+            rho_i = p%rho(i)
+            p_i = p%p(i) / rho_i**2
+            mu_i = rho_i * phys%nu
+            if (phys%viscosity == VISCOSITY_STRAIN_RATE) eps_i = tensor(p%strain(:, i))
+            drho = 0.0_wp
+            dv = 0.0_wp
+            de = 0.0_wp
+            do k = nl%start(i), nl%start(i + 1) - 1
+                j = nl%index(k)
+                d = p%x(:, i) - p%x(:, j)
+                r2 = d(1)**2 + d(2)**2 + d(3)**2
+                if (r2 <= 0.0_wp .or. r2 >= support2) cycle
+                r = sqrt(r2)
+                if (repulsive_only(phys, p%kind(j))) then
+                    if (r < phys%repulsive_r0) then
+                        q = phys%repulsive_r0 / r
+                        dv = dv + phys%repulsive_d * (q**phys%repulsive_n1 - q**phys%repulsive_n2) &
+                            * d / r2
+                    end if
+                    cycle
+                end if
+                dwdr = phys%kernel%dwdr(r)
+                grad = d * (dwdr / r)
+                vij = p%v(:, i) - p%v(:, j)
+                drho = drho + p%m(j) * dot_product(vij, grad)
+                pterm = p_i + p%p(j) / p%rho(j)**2
+                dv = dv - p%m(j) * pterm * grad
+                de = de + 0.5_wp * p%m(j) * pterm * dot_product(vij, grad)
+                select case (phys%viscosity)
+                case (VISCOSITY_MORRIS)
+                    vvisc = vij
+                    if (p%kind(j) == KIND_WALL .and. phys%walls == WALLS_MORRIS) then
+                        beta = morris_beta(distance_to_wall(p, p%x(:, i), j), p%wall_distance(j), &
+                            phys%beta_max)
+                        vvisc = beta * vij
+                    end if
+                    ! (mu_i + mu_j) / (rho_i rho_j) with mu = rho nu
+                    coeff = p%m(j) * phys%nu * phys%viscous_scale * (rho_i + p%rho(j)) &
+                        / (rho_i * p%rho(j)) * r * dwdr / (r2 + phys%eta2)
+                    dv = dv + coeff * vvisc
+                    de = de - 0.5_wp * coeff * dot_product(vvisc, vvisc)
+                case (VISCOSITY_STRAIN_RATE)
+                    eps_j = tensor(p%strain(:, j))
+                    do a = 1, 3
+                        sterm(a) = dot_product(mu_i * eps_i(a, :) / rho_i**2 + &
+                            p%rho(j) * phys%nu * eps_j(a, :) / p%rho(j)**2, grad)
+                    end do
+                    dv = dv + p%m(j) * sterm
+                end select
+            end do
+            if (phys%viscosity == VISCOSITY_STRAIN_RATE) then
+                de = de + mu_i / (2.0_wp * rho_i) * sum(eps_i * eps_i)
+            end if
+            p%drhodt(i) = drho
+            p%dvdt(:, i) = dv + phys%body_force
+            p%dedt(i) = de
+        end do
+
+    contains
+
+        !> Morris wall particles follow the continuity equation with their own velocity.
+        subroutine wall_density_rate(iw)
+            integer, intent(in) :: iw
+            integer :: kk, jj
+            real(wp) :: dd(3), rr
+            drho = 0.0_wp
+            do kk = nl%start(iw), nl%start(iw + 1) - 1
+                jj = nl%index(kk)
+                if (repulsive_only(phys, p%kind(jj))) cycle
+                dd = p%x(:, iw) - p%x(:, jj)
+                rr = norm2(dd)
+                if (rr <= 0.0_wp) cycle
+                drho = drho + p%m(jj) * dot_product(p%v(:, iw) - p%v(:, jj), &
+                    dd * (phys%kernel%dwdr(rr) / rr))
+            end do
+            p%drhodt(iw) = drho
+        end subroutine wall_density_rate
+    end subroutine compute_rates
+
+    pure function tensor(s) result(t)
+        real(wp), intent(in) :: s(6)
+        real(wp) :: t(3, 3)
+        integer :: a, b
+        do b = 1, 3
+            do a = 1, 3
+                t(a, b) = s(voigt(a, b))
+            end do
+        end do
+    end function tensor
+
+    !> Largest speed among owned fluid particles (for the CFL limit and the log).
+    pure real(wp) function local_max_speed(p)
+        type(particles_t), intent(in) :: p
+        integer :: i
+        local_max_speed = 0.0_wp
+        do i = 1, p%n_owned
+            if (p%kind(i) == KIND_FLUID) local_max_speed = max(local_max_speed, norm2(p%v(:, i)))
+        end do
+    end function local_max_speed
+
+    !> Largest acceleration magnitude among owned fluid particles (force limit, eq. 4.3).
+    pure real(wp) function local_max_acceleration(p)
+        type(particles_t), intent(in) :: p
+        integer :: i
+        local_max_acceleration = 0.0_wp
+        do i = 1, p%n_owned
+            if (p%kind(i) == KIND_FLUID) &
+                local_max_acceleration = max(local_max_acceleration, norm2(p%dvdt(:, i)))
+        end do
+    end function local_max_acceleration
+end module sph_rates

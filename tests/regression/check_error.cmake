@@ -1,0 +1,17 @@
+# A bad run must exit non-zero with one message matching EXPECT on stderr and no traceback.
+execute_process(COMMAND ${PROGRAM} ${INPUT} OUTPUT_VARIABLE out ERROR_VARIABLE err
+    RESULT_VARIABLE rc)
+if(rc EQUAL 0)
+    message(FATAL_ERROR "expected a non-zero exit, got 0")
+endif()
+if(NOT err MATCHES "${EXPECT}")
+    message(FATAL_ERROR "stderr does not match '${EXPECT}':\n${err}")
+endif()
+if(err MATCHES "Backtrace|#0 ")
+    message(FATAL_ERROR "a traceback was printed:\n${err}")
+endif()
+string(REGEX MATCHALL "sphremesh: error" hits "${err}")
+list(LENGTH hits n)
+if(NOT n EQUAL 1)
+    message(FATAL_ERROR "expected exactly one error message, got ${n}:\n${err}")
+endif()

@@ -1,0 +1,18 @@
+# Run PROGRAM (a ;-list), require a non-zero exit and every ;-separated regex of EXPECT in
+# its output, and none of REFUSE.
+execute_process(COMMAND ${PROGRAM} OUTPUT_VARIABLE out ERROR_VARIABLE err RESULT_VARIABLE rc)
+set(all "${out}${err}")
+message("${all}")
+if(rc EQUAL 0)
+    message(FATAL_ERROR "the deliberately failing test program exited with 0")
+endif()
+foreach(pattern IN LISTS EXPECT)
+    if(NOT all MATCHES "${pattern}")
+        message(FATAL_ERROR "the failure report lacks '${pattern}'")
+    endif()
+endforeach()
+foreach(pattern IN LISTS REFUSE)
+    if(all MATCHES "${pattern}")
+        message(FATAL_ERROR "the failure report contains '${pattern}'")
+    endif()
+endforeach()

@@ -1,0 +1,63 @@
+!> Small configurations shared by the flow tests, built from namelist text exactly as a user
+!> would write them.
+module test_sph_cases
+    use, intrinsic :: iso_fortran_env, only: error_unit
+    use sph_kinds, only: wp
+    use sph_config, only: config_t, config_parse, config_validate
+    implicit none
+    private
+    public :: config_from_text, channel_text, periodic_box_text
+
+    character(len=*), parameter :: nl = new_line('a')
+
+contains
+
+    !> Parse and validate; a failure here is a broken test, so it stops loudly.
+    function config_from_text(text) result(cfg)
+        character(len=*), intent(in) :: text
+        type(config_t) :: cfg
+        integer :: stat
+        character(len=:), allocatable :: msg
+        call config_parse(cfg, text, 'test', stat, msg)
+        if (stat == 0) call config_validate(cfg, stat, msg)
+        if (stat /= 0) then
+            write(error_unit, '(a)') 'test configuration invalid: ' // msg
+            error stop 1
+        end if
+    end function config_from_text
+
+    !> Morris' channel (L = 1e-3 m), Poiseuille or Couette, at dx = L / n_across.
+    function channel_text(kind, n_across, t_end) result(text)
+        character(len=*), intent(in) :: kind
+        integer, intent(in) :: n_across
+        real(wp), intent(in) :: t_end
+        character(len=:), allocatable :: text
+        character(len=64) :: dx_text, t_text
+        write(dx_text, '(es24.16)') 1.0e-3_wp / n_across
+        write(t_text, '(es24.16)') t_end
+        text = "&run case_name='" // kind // "', t_end=" // trim(t_text) // ", analytic='" // &
+            kind // "' /" // nl // &
+            "&domain dimension=2, box_hi=0.5e-3, 1.0e-3, dx=" // trim(dx_text) // &
+            ", boundary='periodic','periodic','wall','wall'"
+        if (kind == 'couette') text = text // ", wall_velocity(1,4)=2.5e-5"
+        text = text // " /" // nl // "&fluid rho0=1000.0, nu=1.0e-6"
+        if (kind == 'poiseuille') text = text // ", body_force=2.0e-4, 0.0"
+        text = text // " /" // nl
+    end function channel_text
+
+    !> A fully periodic box of n x n (x n) particles with a given sound speed (and EOS).
+    function periodic_box_text(dim, n, eos) result(text)
+        integer, intent(in) :: dim, n
+        character(len=*), intent(in), optional :: eos
+        character(len=:), allocatable :: text
+        character(len=64) :: dim_text, dx_text
+        write(dim_text, '(i0)') dim
+        write(dx_text, '(es24.16)') 1.0e-3_wp / n
+        text = "&run case_name='box' /" // nl // &
+            "&domain dimension=" // trim(dim_text) // ", box_hi=1.0e-3, 1.0e-3, 1.0e-3, dx=" // &
+            trim(dx_text) // " /" // nl // &
+            "&fluid rho0=1000.0, nu=1.0e-6, sound_speed=1.0e-2"
+        if (present(eos)) text = text // ", eos='" // eos // "'"
+        text = text // " /" // nl
+    end function periodic_box_text
+end module test_sph_cases
