@@ -122,6 +122,11 @@ def assertion_call(name, args_text, source, line_number):
             positional.append(arg)
     if len(positional) < len(required) - sum(1 for r in required if r in keywords):
         raise PfError(f"@{name} needs at least {len(required)} arguments")
+    if procedure in ("pf_assert_less_than", "pf_assert_less_than_or_equal", "pf_assert_greater_than",
+                     "pf_assert_greater_than_or_equal") and len(positional) > 2:
+        # real pFUnit: integer comparisons put a KeywordEnforcer before the message and real
+        # ones take a tolerance there; only message= means the same in both
+        raise PfError(f"@{name}: give the message as message='...' (portable to real pFUnit)")
     out = []
     values = positional[:len(required)]
     rest = positional[len(required):]

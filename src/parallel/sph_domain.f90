@@ -62,7 +62,7 @@ contains
         type(mpi_env_t), intent(in) :: env
         real(wp), intent(in) :: x(:, :)
         integer, intent(in) :: n
-        integer :: max_nodes, n_active, k, node, axis, it, i, nl, nr, ierr
+        integer :: max_nodes, n_active, k, node, axis, it, i, nl, ierr
         integer, allocatable :: active(:), next_active(:), rank_lo(:), rank_hi(:), node_of(:)
         real(wp), allocatable :: nlo(:, :), nhi(:, :), a(:), b(:), c(:), target(:), total(:)
         real(wp), allocatable :: below(:), below_local(:), local_max(:), local_min(:)
