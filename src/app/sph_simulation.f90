@@ -23,11 +23,15 @@ module sph_simulation
     use sph_initial, only: create_lattice_particles
     use sph_analytic, only: couette_velocity, poiseuille_velocity
     use sph_snapshot, only: write_snapshot, snapshot_filename
+    use sph_checkpoint, only: write_checkpoint, read_checkpoint, checkpoint_filename, &
+        find_latest_checkpoint
+    use sph_xdmf, only: xdmf_index_entry, write_xdmf
     use sph_version, only: code_version
     implicit none
     private
     public :: simulation_t, simulation_setup, simulation_step, simulation_run
     public :: simulation_analytic_error, simulation_prepare_neighbours, simulation_free
+    public :: simulation_restart, simulation_write_checkpoint
 
     type :: simulation_t
         type(config_t) :: cfg
@@ -43,22 +47,25 @@ module sph_simulation
         real(wp) :: list_skin = 0.0_wp     !< neighbour-list skin: lets a list serve both stages
         type(timestep_limits_t) :: last_limits
         character(len=:), allocatable :: input_text
+        character(len=:), allocatable :: snapshot_index   !< one line per snapshot, for XDMF
+        character(len=512), allocatable :: checkpoints(:) !< written by this run, oldest first
     end type simulation_t
 
 contains
 
-    !> Build everything from a validated configuration (collective).
-    subroutine simulation_setup(sim, env, cfg)
+    !> What a fresh start and a restart share: parameters, walls, the domain, empty particles.
+    subroutine setup_common(sim, env, cfg)
         type(simulation_t), intent(out) :: sim
         type(mpi_env_t), intent(in) :: env
         type(config_t), intent(in) :: cfg
         integer :: stat, axis
         character(len=:), allocatable :: errmsg
         logical :: periodic(3)
-        character(len=256) :: line
 
         sim%cfg = cfg
         sim%input_text = config_to_text(cfg)
+        sim%snapshot_index = ''
+        allocate(sim%checkpoints(0))
         call physics_from_config(cfg, sim%phys, stat, errmsg)
         if (stat /= 0) call fatal_collective('set-up', errmsg)
         do axis = 1, cfg%dimension
@@ -75,18 +82,73 @@ contains
         end do
         call domain_create(sim%domain, env, cfg%dimension, cfg%box_lo, cfg%box_hi, periodic)
         call particles_init(sim%p, 1024, cfg%dimension)
+        ! ghosts reach the support plus a skin that covers any motion within one step
+        sim%skin = 2.0_wp * cfg%cfl * sim%phys%kernel%h
+        sim%list_skin = 0.1_wp * sim%phys%kernel%h
+        sim%time = 0.0_wp
+        sim%step = 0
+    end subroutine setup_common
+
+    !> Build everything from a validated configuration (collective).
+    subroutine simulation_setup(sim, env, cfg)
+        type(simulation_t), intent(out) :: sim
+        type(mpi_env_t), intent(in) :: env
+        type(config_t), intent(in) :: cfg
+        call setup_common(sim, env, cfg)
         call create_lattice_particles(cfg, sim%phys, sim%geo, sim%domain, sim%p)
         ! balance by particle count (walls included: they cost work too)
         call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
         call migrate_particles(sim%domain, env, sim%p)
-        ! ghosts reach the support plus a skin that covers any motion within one step
-        sim%skin = 2.0_wp * cfg%cfl * sim%phys%kernel%h
-        sim%list_skin = 0.1_wp * sim%phys%kernel%h
         call halo_setup(sim%halo, sim%domain, sim%phys%kernel%support + sim%skin)
         call simulation_prepare_neighbours(sim, env)
-        sim%time = 0.0_wp
-        sim%step = 0
+        call log_setup(sim, env)
+    end subroutine simulation_setup
 
+    !> Continue from a checkpoint file, or from the newest complete one in a directory.
+    !> On the rank count that wrote it the run continues bit for bit.
+    subroutine simulation_restart(sim, env, cfg, from)
+        type(simulation_t), intent(out) :: sim
+        type(mpi_env_t), intent(in) :: env
+        type(config_t), intent(in) :: cfg
+        character(len=*), intent(in) :: from
+        character(len=:), allocatable :: path, skipped, errmsg, stored_input, index_text
+        integer :: stat
+        logical :: same_layout, is_directory
+        character(len=256) :: line
+
+        call setup_common(sim, env, cfg)
+        inquire(file=trim(from) // '/.', exist=is_directory)
+        if (is_directory) then
+            call find_latest_checkpoint(env, from, trim(cfg%case_name), path, skipped, stat, errmsg)
+            if (stat /= 0) call fatal_collective('restart', errmsg)
+            if (len(skipped) > 0) call log_info('restart: skipped' // skipped)
+        else
+            path = from
+        end if
+        call read_checkpoint(env, path, sim%p, sim%domain, sim%time, sim%step, stored_input, &
+            index_text, same_layout, stat, errmsg)
+        if (stat /= 0) call fatal_collective('restart', errmsg)
+        sim%snapshot_index = index_text
+        if (.not. same_layout) then
+            call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
+            call migrate_particles(sim%domain, env, sim%p)
+        end if
+        call halo_setup(sim%halo, sim%domain, sim%phys%kernel%support + sim%skin)
+        call simulation_prepare_neighbours(sim, env)
+        call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+        write(line, '(a,es12.5,a,i0,a)') 'continuing from ' // path // ' at t = ', sim%time, &
+            ' s, step ', sim%step, merge(' (same decomposition)      ', &
+                                         ' (decomposition rebuilt)   ', same_layout)
+        call log_info(trim(line))
+        if (stored_input /= sim%input_text) call log_info('restart: the input differs from ' // &
+            'the one stored in the checkpoint; the new input is used')
+        call log_setup(sim, env)
+    end subroutine simulation_restart
+
+    subroutine log_setup(sim, env)
+        type(simulation_t), intent(in) :: sim
+        type(mpi_env_t), intent(in) :: env
+        character(len=256) :: line
         write(line, '(a,es12.5,a,es12.5,a,es12.5,a)') 'physics: h = ', sim%phys%kernel%h, &
             ' m (kernel ' // kernel_name(sim%phys%kernel%id) // ', support ', &
             sim%phys%kernel%support, ' m), c = ', sim%phys%c, ' m/s'
@@ -99,7 +161,29 @@ contains
             ' real (fluid ', global_sum(env, int(count(sim%p%kind(1:sim%p%n_owned) == KIND_FLUID), i8)), &
             '), load imbalance ', domain_imbalance(env, sim%p%n_owned)
         call log_info(trim(line))
-    end subroutine simulation_setup
+    end subroutine log_setup
+
+    !> Write a checkpoint of the current state and keep only the newest checkpoints_kept of
+    !> those this run wrote (collective).
+    subroutine simulation_write_checkpoint(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        character(len=:), allocatable :: path, errmsg
+        integer :: stat, unit
+        path = checkpoint_filename(trim(sim%cfg%output_dir), trim(sim%cfg%case_name), sim%step)
+        call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, sim%cfg%dimension, &
+            code_version, sim%input_text, sim%snapshot_index, stat, errmsg)
+        if (stat /= 0) call fatal_collective('checkpoint', errmsg)
+        if (all(sim%checkpoints /= path)) sim%checkpoints = [character(len=512) :: sim%checkpoints, path]
+        do while (size(sim%checkpoints) > sim%cfg%checkpoints_kept)
+            if (env%rank == 0) then
+                open(newunit=unit, file=trim(sim%checkpoints(1)), status='old', iostat=stat)
+                if (stat == 0) close(unit, status='delete')
+            end if
+            sim%checkpoints = sim%checkpoints(2:)
+        end do
+        call log_info('checkpoint: ' // path)
+    end subroutine simulation_write_checkpoint
 
     subroutine simulation_free(sim)
         type(simulation_t), intent(inout) :: sim
@@ -265,21 +349,27 @@ contains
         character(len=*), intent(in) :: restart_from
         type(simulation_t) :: sim
         real(wp) :: next_output, dt_cap, wall_start, wall_now, wall_last, rho_min, rho_max
-        real(wp) :: remaining, error
-        integer(i8) :: log_every, steps_since_log, interval_index
+        real(wp) :: remaining, error, wall_checkpoint
+        integer(i8) :: log_every, steps_since_log, interval_index, first_step
         integer :: next_listed
         character(len=256) :: line
         logical :: finished
 
-        if (len(restart_from) > 0) call fatal_collective('command line', &
-            '--restart is not available in this version')
-        call simulation_setup(sim, env, cfg)
+        if (len(restart_from) > 0) then
+            call simulation_restart(sim, env, cfg, restart_from)
+            if (sim%time >= cfg%t_end * (1.0_wp - 1.0e-12_wp)) call fatal_collective('restart', &
+                'the checkpoint is already at the end time; raise &run t_end to continue the run')
+        else
+            call simulation_setup(sim, env, cfg)
+            call write_output(sim, env)
+        end if
         interval_index = 0
         next_listed = 1
-        call write_output(sim, env)
         next_output = next_output_time()
         call cpu_clock(wall_start)
         wall_last = wall_start
+        wall_checkpoint = wall_start
+        first_step = sim%step
         log_every = cfg%log_interval
         steps_since_log = 0
         call log_info('     step     time [s]       dt [s]   max |v| [m/s]  ' // &
@@ -293,7 +383,7 @@ contains
             if (log_every == 0) then
                 ! about 40 lines per run, from the first step's time step
                 log_every = max(1_i8, int(cfg%t_end / sim%last_limits%dt / 40.0_wp, i8))
-                if (sim%step == 1) then
+                if (sim%step == first_step + 1) then
                     write(line, '(a,es10.3,a,es10.3,a,es10.3,a,es10.3)') 'time step: dt = ', &
                         sim%last_limits%dt, ' s (limits: CFL ', sim%last_limits%cfl, &
                         ', viscous ', sim%last_limits%viscous, ', force ', sim%last_limits%force
@@ -305,13 +395,30 @@ contains
                 call write_output(sim, env)
                 next_output = next_output_time()
             end if
+            call cpu_clock(wall_now)
+            if (finished) then
+                call simulation_write_checkpoint(sim, env)
+            else if (cfg%checkpoint_interval_steps > 0) then
+                if (mod(sim%step, int(cfg%checkpoint_interval_steps, i8)) == 0) then
+                    call simulation_write_checkpoint(sim, env)
+                    wall_checkpoint = wall_now
+                end if
+            end if
+            ! wall-clock interval: rank 0's clock decides for everybody
+            if (.not. finished .and. cfg%checkpoint_interval_wall > 0.0_wp) then
+                if (global_max(env, merge(wall_now - wall_checkpoint, 0.0_wp, env%rank == 0)) >= &
+                    cfg%checkpoint_interval_wall) then
+                    call simulation_write_checkpoint(sim, env)
+                    wall_checkpoint = wall_now
+                end if
+            end if
             if (mod(sim%step, log_every) == 0 .or. finished) then
                 call cpu_clock(wall_now)
                 rho_min = global_min(env, fluid_extreme(sim%p, .false.))
                 rho_max = global_max(env, fluid_extreme(sim%p, .true.))
-                remaining = (wall_now - wall_start) / real(sim%step, wp) * &
+                remaining = (wall_now - wall_start) / real(sim%step - first_step, wp) * &
                     max(0.0_wp, (cfg%t_end - sim%time) / max(sim%last_limits%dt, tiny(1.0_wp)))
-                remaining = min(remaining, (wall_now - wall_start) / real(sim%step, wp) * &
+                remaining = min(remaining, (wall_now - wall_start) / real(sim%step - first_step, wp) * &
                     real(cfg%max_steps - sim%step, wp))
                 write(line, '(i9,es13.5,es13.5,es16.6,es14.6,a,es12.6,es14.4,es14.3)') sim%step, &
                     sim%time, sim%last_limits%dt, global_max(env, local_max_speed(sim%p)), &
@@ -322,8 +429,8 @@ contains
             end if
         end do
         call cpu_clock(wall_now)
-        write(line, '(a,i0,a,es12.5,a,f10.2,a)') 'finished: ', sim%step, ' steps to t = ', &
-            sim%time, ' s in ', wall_now - wall_start, ' s wall'
+        write(line, '(a,i0,a,es12.5,a,f10.2,a)') 'finished: ', sim%step - first_step, &
+            ' steps to t = ', sim%time, ' s in ', wall_now - wall_start, ' s wall'
         call log_info(trim(line))
         if (trim(cfg%analytic) /= 'none') then
             error = simulation_analytic_error(sim, env)
@@ -331,10 +438,13 @@ contains
                 trim(cfg%analytic) // ' solution at t = ', sim%time, ' s: relative L2 = ', &
                 100.0_wp * error, ' %'
             call log_info(trim(line))
-            error = simulation_analytic_error(sim, env, steady=.true.)
-            write(line, '(a,f9.5,a)') 'error against the steady profile: relative L2 = ', &
-                100.0_wp * error, ' %'
-            call log_info(trim(line))
+            ! the steady profile is a meaningful reference after a few viscous times L^2/(pi^2 nu)
+            if (sim%time > 5.0_wp * (cfg%box_hi(2) - cfg%box_lo(2))**2 / (acos(-1.0_wp)**2 * cfg%nu)) then
+                error = simulation_analytic_error(sim, env, steady=.true.)
+                write(line, '(a,f9.5,a)') 'error against the steady profile: relative L2 = ', &
+                    100.0_wp * error, ' %'
+                call log_info(trim(line))
+            end if
         end if
 
     contains
@@ -359,17 +469,27 @@ contains
         end function next_output_time
     end subroutine simulation_run
 
+    !> A snapshot, its line in the run's index and the XDMF series rewritten (rank 0).
     subroutine write_output(sim, env)
-        type(simulation_t), intent(in) :: sim
+        type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
-        character(len=:), allocatable :: path, errmsg
-        integer :: stat
+        character(len=:), allocatable :: path, errmsg, xdmf_path
+        integer :: stat, k
+        integer(i8) :: rows
         real(wp) :: error
         character(len=160) :: line
         path = snapshot_filename(trim(sim%cfg%output_dir), trim(sim%cfg%case_name), sim%step)
         call write_snapshot(env, sim%p, path, sim%time, sim%step, sim%cfg%dimension, &
             code_version, sim%input_text, stat, errmsg)
         if (stat /= 0) call fatal_collective('output', errmsg)
+        rows = global_sum(env, int(sim%p%n_owned, i8))
+        k = index(path, '/', back=.true.)
+        sim%snapshot_index = sim%snapshot_index // xdmf_index_entry(sim%time, sim%step, rows, path(k + 1:))
+        xdmf_path = trim(sim%cfg%output_dir) // '/' // trim(sim%cfg%case_name) // '.xdmf'
+        stat = 0
+        if (env%rank == 0) call write_xdmf(xdmf_path, sim%snapshot_index, stat)
+        if (global_max(env, int(stat, i8)) /= 0) &
+            call fatal_collective('output', "cannot write '" // xdmf_path // "'")
         write(line, '(a,es12.5,a)') 'snapshot t = ', sim%time, ' s: ' // path
         if (trim(sim%cfg%analytic) /= 'none' .and. sim%time > 0.0_wp) then
             error = simulation_analytic_error(sim, env)

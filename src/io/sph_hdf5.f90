@@ -595,7 +595,7 @@ contains
         call h5tget_size_f(file_type, length, ierr)
         call h5tcopy_f(H5T_C_S1, mem_type, ierr)
         call h5tset_size_f(mem_type, length, ierr)
-        allocate(character(len=int(length)) :: value)
+        value = repeat(" ", int(length))
         dims = 1
         call h5aread_f(attr, mem_type, value, dims, stat)
         call h5tclose_f(mem_type, ierr)

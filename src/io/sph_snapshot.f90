@@ -14,7 +14,7 @@ module sph_snapshot
     implicit none
     private
     public :: write_snapshot, snapshot_filename, read_snapshot_header, read_snapshot_rows
-    public :: snapshot_format_version
+    public :: snapshot_format_version, snapshot_begin, snapshot_end
 
     integer(i4), parameter :: snapshot_format_version = 1
 
@@ -48,28 +48,51 @@ contains
         integer, intent(out), optional :: stat
         character(len=:), allocatable, intent(out), optional :: errmsg
         type(h5_file_t) :: file
-        integer :: n, i, k, ierr, my_stat, dir_end
+        integer :: my_stat
+        character(len=:), allocatable :: message
+        call snapshot_begin(env, p, path, time, step, dimension, code_version, input_text, &
+            file, my_stat, message)
+        if (my_stat == 0) call snapshot_end(env, path, file, my_stat, message)
+        if (present(stat)) then
+            stat = my_stat
+            if (present(errmsg)) errmsg = message
+        else if (my_stat /= 0) then
+            call fatal_collective('write_snapshot', message)
+        end if
+    end subroutine write_snapshot
+
+    !> Create `path`.tmp and write the attributes and particle datasets; the caller may add
+    !> more (checkpoints do) before snapshot_end.
+    subroutine snapshot_begin(env, p, path, time, step, dimension, code_version, input_text, &
+                              file, stat, errmsg)
+        type(mpi_env_t), intent(in) :: env
+        type(particles_t), intent(in) :: p
+        character(len=*), intent(in) :: path, code_version, input_text
+        real(wp), intent(in) :: time
+        integer(i8), intent(in) :: step
+        integer, intent(in) :: dimension
+        type(h5_file_t), intent(out) :: file
+        integer, intent(out) :: stat
+        character(len=:), allocatable, intent(out) :: errmsg
+        integer :: n, i, k, dir_end
         integer, allocatable :: rows(:)
         real(wp), allocatable :: v3(:, :), v1(:)
         integer(i8), allocatable :: ids(:)
         integer(i4), allocatable :: ints(:)
-        character(len=:), allocatable :: tmp, message
 
-        tmp = path // '.tmp'
-        message = ''
+        errmsg = ''
         ! rank 0 makes the directory; everybody learns whether it worked
-        my_stat = 0
+        stat = 0
         dir_end = index(path, '/', back=.true.)
-        if (env%rank == 0 .and. dir_end > 1) call make_directories(path(1:dir_end - 1), my_stat)
-        if (global_max(env, int(my_stat, i8)) /= 0) then
-            message = "cannot create the output directory '" // path(1:max(dir_end - 1, 0)) // "'"
-            call finish(1)
+        if (env%rank == 0 .and. dir_end > 1) call make_directories(path(1:dir_end - 1), stat)
+        if (global_max(env, int(stat, i8)) /= 0) then
+            stat = 1
+            errmsg = "cannot create the output directory '" // path(1:max(dir_end - 1, 0)) // "'"
             return
         end if
-        call h5_create(env, tmp, file, my_stat)
-        if (my_stat /= 0) then
-            message = "cannot create the snapshot file '" // tmp // "'"
-            call finish(1)
+        call h5_create(env, path // '.tmp', file, stat)
+        if (stat /= 0) then
+            errmsg = "cannot create the file '" // path // ".tmp'"
             return
         end if
         ! rows: owned real particles
@@ -118,31 +141,27 @@ contains
         call h5_write_rows(env, file, 'particles/level', ints, n)
         ints(1:n) = int(env%rank, i4)
         call h5_write_rows(env, file, 'particles/rank', ints, n)
-        ! last: the marker that the file is whole
+    end subroutine snapshot_begin
+
+    !> The write_complete marker last, close, and rename `path`.tmp to `path` (rank 0).
+    subroutine snapshot_end(env, path, file, stat, errmsg)
+        type(mpi_env_t), intent(in) :: env
+        character(len=*), intent(in) :: path
+        type(h5_file_t), intent(inout) :: file
+        integer, intent(out) :: stat
+        character(len=:), allocatable, intent(out) :: errmsg
+        errmsg = ''
         call h5_write_attribute(file, 'write_complete', 1_i4)
         call h5_close(file)
-        my_stat = 0
+        stat = 0
         if (env%rank == 0) then
-            if (c_rename(tmp // c_null_char, path // c_null_char) /= 0) my_stat = 1
+            if (c_rename(path // '.tmp' // c_null_char, path // c_null_char) /= 0) stat = 1
         end if
-        if (global_max(env, int(my_stat, i8)) /= 0) then
-            message = "cannot rename '" // tmp // "' to '" // path // "'"
-            call finish(1)
-            return
+        if (global_max(env, int(stat, i8)) /= 0) then
+            stat = 1
+            errmsg = "cannot rename '" // path // ".tmp' to '" // path // "'"
         end if
-        call finish(0)
-        ierr = 0
-    contains
-        subroutine finish(code)
-            integer, intent(in) :: code
-            if (present(stat)) then
-                stat = code
-                if (present(errmsg)) errmsg = message
-            else if (code /= 0) then
-                call fatal_collective('write_snapshot', message)
-            end if
-        end subroutine finish
-    end subroutine write_snapshot
+    end subroutine snapshot_end
 
     !> Header of a snapshot; refuses (stat /= 0, message naming the file) a file that cannot
     !> be opened or lacks the write_complete marker.

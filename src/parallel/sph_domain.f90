@@ -14,7 +14,7 @@ module sph_domain
     implicit none
     private
     public :: domain_t, domain_create, domain_partition, domain_owner, domain_wrap
-    public :: migrate_particles, domain_imbalance, far
+    public :: migrate_particles, domain_imbalance, far, domain_set_tree
 
     real(wp), parameter :: far = 1.0e30_wp   !< "infinite" extent of an open (wall) face
     integer, parameter :: bisection_steps = 64
@@ -62,8 +62,10 @@ contains
         type(mpi_env_t), intent(in) :: env
         real(wp), intent(in) :: x(:, :)
         integer, intent(in) :: n
-        integer :: max_nodes, n_active, k, node, axis, it, i, nl, ierr
+        integer :: max_nodes, n_active, k, node, axis, it, i, nl, ierr, n_used
         integer, allocatable :: active(:), next_active(:), rank_lo(:), rank_hi(:), node_of(:)
+        integer, allocatable :: tree_axis(:), tree_left(:), tree_right(:), tree_rank(:)
+        real(wp), allocatable :: tree_cut(:)
         real(wp), allocatable :: nlo(:, :), nhi(:, :), a(:), b(:), c(:), target(:), total(:)
         real(wp), allocatable :: below(:), below_local(:), local_max(:), local_min(:)
         real(wp), allocatable :: glob_max(:), glob_min(:)
@@ -186,23 +188,18 @@ contains
             deallocate(a, b, c, target, total, below, below_local, local_max, local_min, &
                 glob_max, glob_min)
         end do
-        ! leaves: rank and subdomain box, open at wall faces
-        allocate(domain%box_lo(3, 0:domain%nranks - 1), domain%box_hi(3, 0:domain%nranks - 1))
+        ! leaves carry their rank; the boxes follow from the cuts
         do node = 1, domain%n_nodes
-            if (domain%node_left(node) /= 0) cycle
-            domain%node_rank(node) = rank_lo(node)
-            domain%box_lo(:, rank_lo(node)) = nlo(:, node)
-            domain%box_hi(:, rank_lo(node)) = nhi(:, node)
-            do axis = 1, 3
-                if (domain%periodic(axis)) cycle
-                if (nlo(axis, node) <= domain%lo(axis)) domain%box_lo(axis, rank_lo(node)) = -far
-                if (nhi(axis, node) >= domain%hi(axis)) domain%box_hi(axis, rank_lo(node)) = far
-            end do
-            if (domain%dim == 2) then
-                domain%box_lo(3, rank_lo(node)) = -far
-                domain%box_hi(3, rank_lo(node)) = far
-            end if
+            if (domain%node_left(node) == 0) domain%node_rank(node) = rank_lo(node)
         end do
+        ! copies: domain_set_tree reassigns the very arrays it is given
+        n_used = domain%n_nodes
+        tree_axis = domain%node_axis(1:n_used)
+        tree_left = domain%node_left(1:n_used)
+        tree_right = domain%node_right(1:n_used)
+        tree_rank = domain%node_rank(1:n_used)
+        tree_cut = domain%node_cut(1:n_used)
+        call domain_set_tree(domain, tree_axis, tree_left, tree_right, tree_rank, tree_cut)
 
     contains
 
@@ -229,6 +226,52 @@ contains
                 real((rank_hi(nd) - rank_lo(nd) + 1) / 2, wp) / real(rank_hi(nd) - rank_lo(nd) + 1, wp)
         end function geometric_cut
     end subroutine domain_partition
+
+    !> Restore a decomposition from its ORB tree (checkpoints): the subdomain boxes follow from
+    !> the cuts, walking down from the whole box.
+    subroutine domain_set_tree(domain, node_axis, node_left, node_right, node_rank, node_cut)
+        type(domain_t), intent(inout) :: domain
+        integer, intent(in) :: node_axis(:), node_left(:), node_right(:), node_rank(:)
+        real(wp), intent(in) :: node_cut(:)
+        real(wp), allocatable :: nlo(:, :), nhi(:, :)
+        integer :: node, axis, r, n
+        n = size(node_axis)
+        domain%n_nodes = n
+        domain%node_axis = node_axis
+        domain%node_left = node_left
+        domain%node_right = node_right
+        domain%node_rank = node_rank
+        domain%node_cut = node_cut
+        allocate(nlo(3, n), nhi(3, n))
+        nlo(:, 1) = domain%lo
+        nhi(:, 1) = domain%hi
+        ! children always come after their parent
+        do node = 1, n
+            if (node_left(node) == 0) cycle
+            axis = node_axis(node)
+            nlo(:, node_left(node)) = nlo(:, node); nhi(:, node_left(node)) = nhi(:, node)
+            nhi(axis, node_left(node)) = node_cut(node)
+            nlo(:, node_right(node)) = nlo(:, node); nhi(:, node_right(node)) = nhi(:, node)
+            nlo(axis, node_right(node)) = node_cut(node)
+        end do
+        if (allocated(domain%box_lo)) deallocate(domain%box_lo, domain%box_hi)
+        allocate(domain%box_lo(3, 0:domain%nranks - 1), domain%box_hi(3, 0:domain%nranks - 1))
+        do node = 1, n
+            if (node_left(node) /= 0) cycle
+            r = node_rank(node)
+            domain%box_lo(:, r) = nlo(:, node)
+            domain%box_hi(:, r) = nhi(:, node)
+            do axis = 1, 3
+                if (domain%periodic(axis)) cycle
+                if (nlo(axis, node) <= domain%lo(axis)) domain%box_lo(axis, r) = -far
+                if (nhi(axis, node) >= domain%hi(axis)) domain%box_hi(axis, r) = far
+            end do
+            if (domain%dim == 2) then
+                domain%box_lo(3, r) = -far
+                domain%box_hi(3, r) = far
+            end if
+        end do
+    end subroutine domain_set_tree
 
     !> The rank owning a (wrapped) position.
     pure integer function domain_owner(domain, xi)

@@ -1,0 +1,247 @@
+!> Checkpoints: a snapshot file plus what a bit-for-bit continuation needs (each particle's
+!> wall geometry, every rank's row count and the ORB tree, the snapshot index of the run),
+!> written as safely as snapshots (temporary name, write_complete last, rename). On the same
+!> rank count each rank gets back exactly its particles in their order and the same
+!> decomposition, so the continued run repeats the uninterrupted one bit for bit; on another
+!> rank count the rows are shared out evenly and the caller rebuilds the decomposition.
+module sph_checkpoint
+    use, intrinsic :: iso_c_binding, only: c_char, c_int, c_null_char
+    use sph_kinds, only: wp, i4, i8
+    use sph_mpi_env, only: mpi_env_t, broadcast_text
+    use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL
+    use sph_domain, only: domain_t, domain_set_tree
+    use sph_hdf5, only: h5_file_t, h5_open_read, h5_close, h5_group_create, h5_write_rows, &
+        h5_read_rows, h5_dataset_rows, h5_write_attribute, h5_read_attribute
+    use sph_snapshot, only: snapshot_begin, snapshot_end, read_snapshot_header, &
+        read_snapshot_rows
+    implicit none
+    private
+    public :: write_checkpoint, read_checkpoint, checkpoint_filename, find_latest_checkpoint
+    public :: checkpoint_format_version
+
+    integer(i4), parameter :: checkpoint_format_version = 1
+    integer, parameter :: listing_capacity = 4 * 1024 * 1024
+
+    interface
+        integer(c_int) function c_list_directory(path, buffer, capacity) &
+                bind(C, name="sph_list_directory")
+            import :: c_char, c_int
+            character(kind=c_char), intent(in) :: path(*)
+            character(kind=c_char), intent(out) :: buffer(*)
+            integer(c_int), value :: capacity
+        end function c_list_directory
+    end interface
+
+contains
+
+    function checkpoint_filename(output_dir, case_name, step) result(path)
+        character(len=*), intent(in) :: output_dir, case_name
+        integer(i8), intent(in) :: step
+        character(len=:), allocatable :: path
+        character(len=32) :: digits
+        write(digits, '(i6.6)') step
+        path = trim(output_dir) // '/' // trim(case_name) // '_checkpoint_' // trim(adjustl(digits)) // '.h5'
+    end function checkpoint_filename
+
+    subroutine write_checkpoint(env, p, domain, path, time, step, dimension, code_version, &
+                                input_text, snapshot_index, stat, errmsg)
+        type(mpi_env_t), intent(in) :: env
+        type(particles_t), intent(in) :: p
+        type(domain_t), intent(in) :: domain
+        character(len=*), intent(in) :: path, code_version, input_text, snapshot_index
+        real(wp), intent(in) :: time
+        integer(i8), intent(in) :: step
+        integer, intent(in) :: dimension
+        integer, intent(out) :: stat
+        character(len=:), allocatable, intent(out) :: errmsg
+        type(h5_file_t) :: file
+        integer :: n, n_tree
+        integer(i8) :: my_rows(1)
+        real(wp), allocatable :: normals(:, :), distances(:), cuts(:)
+        integer(i4), allocatable :: tree(:)
+
+        ! every owned particle is a real one (ghosts and mirrors live after n_owned), so the
+        ! snapshot rows are exactly 1..n_owned in order
+        n = p%n_owned
+        if (any(p%kind(1:n) /= KIND_FLUID .and. p%kind(1:n) /= KIND_WALL .and. &
+                p%kind(1:n) /= KIND_VIRTUAL)) then
+            stat = 1
+            errmsg = 'write_checkpoint: an owned particle of an unexpected kind'
+            return
+        end if
+        call snapshot_begin(env, p, path, time, step, dimension, code_version, input_text, &
+            file, stat, errmsg)
+        if (stat /= 0) return
+        call h5_write_attribute(file, 'checkpoint_format_version', checkpoint_format_version)
+        call h5_write_attribute(file, 'snapshot_index', snapshot_index)
+        allocate(normals(3, max(n, 1)), distances(max(n, 1)))
+        normals(:, 1:n) = p%wall_normal(:, 1:n)
+        distances(1:n) = p%wall_distance(1:n)
+        call h5_write_rows(env, file, 'particles/wall_normal', normals, n)
+        call h5_write_rows(env, file, 'particles/wall_distance', distances, n)
+        call h5_group_create(file, 'checkpoint')
+        my_rows = int(n, i8)
+        call h5_write_rows(env, file, 'checkpoint/rank_rows', my_rows, 1)
+        ! the ORB tree, from rank 0 (every rank holds the same tree)
+        n_tree = merge(domain%n_nodes, 0, env%rank == 0)
+        allocate(tree(max(domain%n_nodes, 1)), cuts(max(domain%n_nodes, 1)))
+        cuts(1:domain%n_nodes) = domain%node_cut(1:domain%n_nodes)
+        call h5_write_rows(env, file, 'checkpoint/orb_cut', cuts, n_tree)
+        tree(1:domain%n_nodes) = int(domain%node_axis(1:domain%n_nodes), i4)
+        call h5_write_rows(env, file, 'checkpoint/orb_axis', tree, n_tree)
+        tree(1:domain%n_nodes) = int(domain%node_left(1:domain%n_nodes), i4)
+        call h5_write_rows(env, file, 'checkpoint/orb_left', tree, n_tree)
+        tree(1:domain%n_nodes) = int(domain%node_right(1:domain%n_nodes), i4)
+        call h5_write_rows(env, file, 'checkpoint/orb_right', tree, n_tree)
+        tree(1:domain%n_nodes) = int(domain%node_rank(1:domain%n_nodes), i4)
+        call h5_write_rows(env, file, 'checkpoint/orb_rank', tree, n_tree)
+        call snapshot_end(env, path, file, stat, errmsg)
+    end subroutine write_checkpoint
+
+    !> Read a checkpoint into p (owned particles). same_layout is true when the file was
+    !> written on this many ranks: then the decomposition in `domain` is restored too;
+    !> otherwise the caller must partition and migrate. Refuses incomplete or foreign files.
+    subroutine read_checkpoint(env, path, p, domain, time, step, input_text, snapshot_index, &
+                               same_layout, stat, errmsg)
+        type(mpi_env_t), intent(in) :: env
+        character(len=*), intent(in) :: path
+        type(particles_t), intent(inout) :: p
+        type(domain_t), intent(inout) :: domain
+        real(wp), intent(out) :: time
+        integer(i8), intent(out) :: step
+        character(len=:), allocatable, intent(out) :: input_text, snapshot_index
+        logical, intent(out) :: same_layout
+        integer, intent(out) :: stat
+        character(len=:), allocatable, intent(out) :: errmsg
+        type(h5_file_t) :: file
+        integer :: dimension, n, n_tree
+        integer(i4) :: version, nranks_file
+        integer(i8) :: n_rows, offset, share, extra
+        integer(i8), allocatable :: rank_rows(:)
+        integer(i4), allocatable :: axis(:), left(:), right(:), ranks(:)
+        real(wp), allocatable :: cuts(:), normals(:, :), distances(:)
+
+        same_layout = .false.
+        snapshot_index = ''
+        call read_snapshot_header(env, path, time, step, dimension, n_rows, input_text, stat, errmsg)
+        if (stat /= 0) return
+        call h5_open_read(env, path, file, stat)
+        if (stat /= 0) then
+            errmsg = "cannot open '" // path // "'"
+            return
+        end if
+        call h5_read_attribute(file, 'checkpoint_format_version', version, stat)
+        if (stat /= 0 .or. version /= checkpoint_format_version) then
+            stat = 1
+            errmsg = "'" // path // "' is not a sphremesh checkpoint of format version 1 " // &
+                "(a snapshot, or written by an incompatible version): refused"
+            call h5_close(file)
+            return
+        end if
+        call h5_read_attribute(file, 'snapshot_index', snapshot_index, stat)
+        call h5_read_attribute(file, 'nranks', nranks_file, stat)
+        same_layout = nranks_file == env%nranks .and. &
+            h5_dataset_rows(file, 'checkpoint/rank_rows') == env%nranks
+        if (same_layout) then
+            allocate(rank_rows(env%nranks))
+            call h5_read_rows(file, 'checkpoint/rank_rows', rank_rows, env%nranks, 0_i8)
+            offset = sum(rank_rows(1:env%rank))
+            n = int(rank_rows(env%rank + 1))
+            n_tree = int(h5_dataset_rows(file, 'checkpoint/orb_axis'))
+            allocate(axis(n_tree), left(n_tree), right(n_tree), ranks(n_tree), cuts(n_tree))
+            call h5_read_rows(file, 'checkpoint/orb_axis', axis, n_tree, 0_i8)
+            call h5_read_rows(file, 'checkpoint/orb_left', left, n_tree, 0_i8)
+            call h5_read_rows(file, 'checkpoint/orb_right', right, n_tree, 0_i8)
+            call h5_read_rows(file, 'checkpoint/orb_rank', ranks, n_tree, 0_i8)
+            call h5_read_rows(file, 'checkpoint/orb_cut', cuts, n_tree, 0_i8)
+            call domain_set_tree(domain, int(axis), int(left), int(right), int(ranks), cuts)
+        else
+            share = n_rows / env%nranks
+            extra = mod(n_rows, int(env%nranks, i8))
+            n = int(share + merge(1_i8, 0_i8, env%rank < extra))
+            offset = env%rank * share + min(int(env%rank, i8), extra)
+        end if
+        allocate(normals(3, max(n, 1)), distances(max(n, 1)))
+        call h5_read_rows(file, 'particles/wall_normal', normals, n, offset)
+        call h5_read_rows(file, 'particles/wall_distance', distances, n, offset)
+        call h5_close(file)
+        call read_snapshot_rows(env, path, p, offset, n, stat, errmsg)
+        if (stat /= 0) return
+        p%wall_normal(:, 1:n) = normals(:, 1:n)
+        p%wall_distance(1:n) = distances(1:n)
+        ! the start-of-step copies are rebuilt by the next step; keep them defined
+        p%x_old(:, 1:n) = p%x(:, 1:n)
+        p%v_old(:, 1:n) = p%v(:, 1:n)
+        p%rho_old(1:n) = p%rho(1:n)
+        p%e_old(1:n) = p%e(1:n)
+    end subroutine read_checkpoint
+
+    !> The newest complete checkpoint of `case_name` in `directory` (collective). Incomplete
+    !> or unreadable candidates are skipped and named in `skipped`.
+    subroutine find_latest_checkpoint(env, directory, case_name, path, skipped, stat, errmsg)
+        type(mpi_env_t), intent(in) :: env
+        character(len=*), intent(in) :: directory, case_name
+        character(len=:), allocatable, intent(out) :: path, skipped, errmsg
+        integer, intent(out) :: stat
+        character(len=:), allocatable :: listing, prefix, name, candidate, text, reason
+        character(kind=c_char), allocatable :: buffer(:)
+        integer(i8), allocatable :: steps(:)
+        character(len=512), allocatable :: names(:)
+        integer :: used, k, start, n, best, digits_stat, dim
+        integer(i8) :: step, rows
+        real(wp) :: time
+
+        path = ''
+        skipped = ''
+        errmsg = ''
+        listing = ''
+        if (env%rank == 0) then
+            allocate(buffer(listing_capacity))
+            used = c_list_directory(trim(directory) // c_null_char, buffer, listing_capacity)
+            if (used >= 0) then
+                listing = repeat(" ", used)
+                do k = 1, used
+                    listing(k:k) = buffer(k)
+                end do
+            else
+                listing = achar(0)
+            end if
+        end if
+        call broadcast_text(env, listing)
+        if (listing == achar(0)) then
+            stat = 1
+            errmsg = "cannot read the directory '" // directory // "'"
+            return
+        end if
+        prefix = trim(case_name) // '_checkpoint_'
+        allocate(names(0), steps(0))
+        start = 1
+        do k = 1, len(listing)
+            if (listing(k:k) /= new_line('a')) cycle
+            name = listing(start:k - 1)
+            start = k + 1
+            n = len(name)
+            if (n <= len(prefix) + 3) cycle
+            if (name(1:len(prefix)) /= prefix .or. name(n - 2:n) /= '.h5') cycle
+            read(name(len(prefix) + 1:n - 3), *, iostat=digits_stat) step
+            if (digits_stat /= 0) cycle
+            names = [character(len=512) :: names, name]
+            steps = [steps, step]
+        end do
+        stat = 1
+        do while (size(steps) > 0)
+            best = maxloc(steps, dim=1)
+            candidate = trim(directory) // '/' // trim(names(best))
+            call read_snapshot_header(env, candidate, time, step, dim, rows, text, stat, reason)
+            if (stat == 0) then
+                path = candidate
+                return
+            end if
+            skipped = skipped // ' ' // reason
+            steps(best) = -1
+            if (all(steps < 0)) exit
+        end do
+        stat = 1
+        errmsg = "no complete checkpoint '" // prefix // "*.h5' in '" // directory // "'" // skipped
+    end subroutine find_latest_checkpoint
+end module sph_checkpoint

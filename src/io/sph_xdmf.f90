@@ -1,0 +1,101 @@
+!> XDMF (version 3) time series beside the snapshots, so ParaView and VisIt open a whole run
+!> at once: one Polyvertex grid per snapshot, pointing into its HDF5 datasets. Written by
+!> rank 0 alone, after each snapshot file is complete, under a temporary name then renamed.
+module sph_xdmf
+    use, intrinsic :: iso_c_binding, only: c_char, c_int, c_null_char
+    use sph_kinds, only: wp, i8
+    implicit none
+    private
+    public :: xdmf_index_entry, write_xdmf
+
+    interface
+        integer(c_int) function c_rename(old, new) bind(C, name="rename")
+            import :: c_char, c_int
+            character(kind=c_char), intent(in) :: old(*), new(*)
+        end function c_rename
+    end interface
+
+contains
+
+    !> One line of the run's snapshot index: time, step, rows, file name (no folder).
+    function xdmf_index_entry(time, step, rows, file_name) result(line)
+        real(wp), intent(in) :: time
+        integer(i8), intent(in) :: step, rows
+        character(len=*), intent(in) :: file_name
+        character(len=:), allocatable :: line
+        character(len=96) :: numbers
+        write(numbers, '(es24.16,1x,i0,1x,i0)') time, step, rows
+        line = trim(adjustl(numbers)) // ' ' // file_name // new_line('a')
+    end function xdmf_index_entry
+
+    !> Write `path` from the index text (one xdmf_index_entry per snapshot). stat /= 0 when
+    !> the file cannot be written.
+    subroutine write_xdmf(path, index_text, stat)
+        character(len=*), intent(in) :: path, index_text
+        integer, intent(out) :: stat
+        integer :: unit, start, k, ios, f
+        real(wp) :: time
+        integer(i8) :: step, rows
+        character(len=512) :: file_name
+        character(len=32) :: n_text
+        character(len=*), parameter :: scalars(6) = [character(len=16) :: 'density', 'pressure', &
+            'mass', 'smoothing_length', 'energy', 'id']
+        character(len=*), parameter :: ints(3) = [character(len=8) :: 'kind', 'level', 'rank']
+
+        open(newunit=unit, file=path // '.tmp', status='replace', action='write', iostat=stat)
+        if (stat /= 0) return
+        write(unit, '(a)') '<?xml version="1.0" ?>'
+        write(unit, '(a)') '<Xdmf Version="3.0">'
+        write(unit, '(a)') ' <Domain>'
+        write(unit, '(a)') '  <Grid Name="particles" GridType="Collection" CollectionType="Temporal">'
+        start = 1
+        do k = 1, len(index_text)
+            if (index_text(k:k) /= new_line('a')) cycle
+            read(index_text(start:k - 1), *, iostat=ios) time, step, rows, file_name
+            start = k + 1
+            if (ios /= 0) cycle
+            write(n_text, '(i0)') rows
+            write(unit, '(a,i0,a)') '   <Grid Name="step_', step, '" GridType="Uniform">'
+            write(unit, '(a,es24.16,a)') '    <Time Value="', time, '"/>'
+            write(unit, '(a)') '    <Topology TopologyType="Polyvertex" NumberOfElements="' // &
+                trim(n_text) // '"/>'
+            write(unit, '(a)') '    <Geometry GeometryType="XYZ">'
+            call data_item('position', 'Float', 8, trim(n_text) // ' 3')
+            write(unit, '(a)') '    </Geometry>'
+            write(unit, '(a)') '    <Attribute Name="velocity" AttributeType="Vector" Center="Node">'
+            call data_item('velocity', 'Float', 8, trim(n_text) // ' 3')
+            write(unit, '(a)') '    </Attribute>'
+            do f = 1, size(scalars)
+                write(unit, '(a)') '    <Attribute Name="' // trim(scalars(f)) // &
+                    '" AttributeType="Scalar" Center="Node">'
+                if (trim(scalars(f)) == 'id') then
+                    call data_item('id', 'Int', 8, trim(n_text))
+                else
+                    call data_item(trim(scalars(f)), 'Float', 8, trim(n_text))
+                end if
+                write(unit, '(a)') '    </Attribute>'
+            end do
+            do f = 1, size(ints)
+                write(unit, '(a)') '    <Attribute Name="' // trim(ints(f)) // &
+                    '" AttributeType="Scalar" Center="Node">'
+                call data_item(trim(ints(f)), 'Int', 4, trim(n_text))
+                write(unit, '(a)') '    </Attribute>'
+            end do
+            write(unit, '(a)') '   </Grid>'
+        end do
+        write(unit, '(a)') '  </Grid>'
+        write(unit, '(a)') ' </Domain>'
+        write(unit, '(a)') '</Xdmf>'
+        close(unit, iostat=stat)
+        if (stat /= 0) return
+        if (c_rename(path // '.tmp' // c_null_char, path // c_null_char) /= 0) stat = 1
+    contains
+        subroutine data_item(dataset, number_type, precision, dimensions)
+            character(len=*), intent(in) :: dataset, number_type, dimensions
+            integer, intent(in) :: precision
+            write(unit, '(a,i0,a)') '     <DataItem Dimensions="' // dimensions // &
+                '" NumberType="' // number_type // '" Precision="', precision, &
+                '" Format="HDF">' // trim(file_name) // ':/particles/' // dataset // '</DataItem>'
+        end subroutine data_item
+    end subroutine write_xdmf
+end module sph_xdmf
