@@ -183,15 +183,14 @@ contains
 
     !> Create a dataset of `total` rows (and `width` columns) and return its id and this rank's
     !> offset (collective).
-    subroutine create_rows(env, file, name, file_type, width, local, dset, offset)
+    subroutine create_rows(env, file, name, file_type, width, local, dset, offset, total)
         type(mpi_env_t), intent(in) :: env
         type(h5_file_t), intent(in) :: file
         character(len=*), intent(in) :: name
         integer(hid_t), intent(in) :: file_type
         integer, intent(in) :: width, local
         integer(hid_t), intent(out) :: dset
-        integer(i8), intent(out) :: offset
-        integer(i8) :: total
+        integer(i8), intent(out) :: offset, total
         integer(hsize_t) :: dims(2)
         integer(hid_t) :: space
         integer :: ierr, rank
@@ -227,9 +226,13 @@ contains
         integer, intent(in) :: local
         real(wp), target :: dummy(1)
         integer(hid_t) :: dset, filespace, memspace
-        integer(i8) :: offset
+        integer(i8) :: offset, total
         integer :: ierr
-        call create_rows(env, file, name, H5T_NATIVE_DOUBLE, 0, local, dset, offset)
+        call create_rows(env, file, name, H5T_NATIVE_DOUBLE, 0, local, dset, offset, total)
+        if (total == 0) then
+            call h5dclose_f(dset, ierr)
+            return
+        end if
         call row_spaces(dset, 0, local, offset, filespace, memspace)
         dummy = 0.0_wp
         if (local > 0) then
@@ -250,9 +253,13 @@ contains
         integer, intent(in) :: local
         real(wp), target :: dummy(3)
         integer(hid_t) :: dset, filespace, memspace
-        integer(i8) :: offset
+        integer(i8) :: offset, total
         integer :: ierr
-        call create_rows(env, file, name, H5T_NATIVE_DOUBLE, 3, local, dset, offset)
+        call create_rows(env, file, name, H5T_NATIVE_DOUBLE, 3, local, dset, offset, total)
+        if (total == 0) then
+            call h5dclose_f(dset, ierr)
+            return
+        end if
         call row_spaces(dset, 3, local, offset, filespace, memspace)
         dummy = 0.0_wp
         if (local > 0) then
@@ -272,10 +279,14 @@ contains
         integer, intent(in) :: local
         integer(i8), target :: dummy(1)
         integer(hid_t) :: dset, filespace, memspace, mem_type
-        integer(i8) :: offset
+        integer(i8) :: offset, total
         integer :: ierr
         mem_type = h5kind_to_type(i8, H5_INTEGER_KIND)
-        call create_rows(env, file, name, H5T_STD_I64LE, 0, local, dset, offset)
+        call create_rows(env, file, name, H5T_STD_I64LE, 0, local, dset, offset, total)
+        if (total == 0) then
+            call h5dclose_f(dset, ierr)
+            return
+        end if
         call row_spaces(dset, 0, local, offset, filespace, memspace)
         dummy = 0
         if (local > 0) then
@@ -295,10 +306,14 @@ contains
         integer, intent(in) :: local
         integer(i4), target :: dummy(1)
         integer(hid_t) :: dset, filespace, memspace, mem_type
-        integer(i8) :: offset
+        integer(i8) :: offset, total
         integer :: ierr
         mem_type = h5kind_to_type(i4, H5_INTEGER_KIND)
-        call create_rows(env, file, name, H5T_STD_I32LE, 0, local, dset, offset)
+        call create_rows(env, file, name, H5T_STD_I32LE, 0, local, dset, offset, total)
+        if (total == 0) then
+            call h5dclose_f(dset, ierr)
+            return
+        end if
         call row_spaces(dset, 0, local, offset, filespace, memspace)
         dummy = 0
         if (local > 0) then
@@ -351,6 +366,7 @@ contains
         integer(hid_t) :: dset, filespace, memspace
         integer :: ierr
         type(c_ptr) :: ptr
+        if (h5_dataset_rows(file, name) == 0) return   ! nothing to transfer, on every rank
         call open_rows(file, name, 0, local, offset, dset, filespace, memspace)
         if (local > 0) then
             ptr = c_loc(values)
@@ -373,6 +389,7 @@ contains
         integer(hid_t) :: dset, filespace, memspace
         integer :: ierr
         type(c_ptr) :: ptr
+        if (h5_dataset_rows(file, name) == 0) return   ! nothing to transfer, on every rank
         call open_rows(file, name, 3, local, offset, dset, filespace, memspace)
         if (local > 0) then
             ptr = c_loc(values)
@@ -395,6 +412,7 @@ contains
         integer(hid_t) :: dset, filespace, memspace
         integer :: ierr
         type(c_ptr) :: ptr
+        if (h5_dataset_rows(file, name) == 0) return   ! nothing to transfer, on every rank
         call open_rows(file, name, 0, local, offset, dset, filespace, memspace)
         if (local > 0) then
             ptr = c_loc(values)
@@ -419,6 +437,7 @@ contains
         integer(hid_t) :: dset, filespace, memspace
         integer :: ierr
         type(c_ptr) :: ptr
+        if (h5_dataset_rows(file, name) == 0) return   ! nothing to transfer, on every rank
         call open_rows(file, name, 0, local, offset, dset, filespace, memspace)
         if (local > 0) then
             ptr = c_loc(values)
