@@ -63,7 +63,7 @@ module sph_config
         real(wp) :: force_safety = 0.25_wp
         real(wp) :: beta_max = 10.0_wp
         real(wp) :: repulsive_strength = 0.0_wp  !< D of eq. 2.18; 0 = velocity_scale**2
-        real(wp) :: repulsive_r0 = 0.0_wp        !< r0 of eq. 2.18; 0 = dx
+        real(wp) :: repulsive_r0 = 0.0_wp        !< r0 of eq. 2.18; 0 = dx/2
         integer :: repulsive_n1 = 12
         integer :: repulsive_n2 = 4
         ! &parallel
@@ -435,6 +435,10 @@ contains
         if (cfg%checkpoint_interval_wall < 0.0_wp) &
             call add('&restart checkpoint_interval_wall', 'must be >= 0 (s; 0 = off)')
         if (cfg%checkpoints_kept < 1) call add('&restart checkpoints_kept', 'must be >= 1')
+        if (trim(cfg%viscosity_model) == 'strain_rate' .and. (trim(cfg%wall_model) == 'mirror' &
+            .or. trim(cfg%wall_model) == 'repulsive_mirror')) call add('&numerics viscosity_model', &
+            "'strain_rate' works with wall_model = 'morris' only (mirror images do not carry a " // &
+            'consistent strain rate)')
         if (stat == 0) call check_analytic_case(cfg)
     contains
         subroutine add(key, what)

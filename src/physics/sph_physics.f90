@@ -118,7 +118,8 @@ contains
         phys%repulsive_d = cfg%repulsive_strength
         if (phys%repulsive_d <= 0.0_wp) phys%repulsive_d = velocity**2
         phys%repulsive_r0 = cfg%repulsive_r0
-        if (phys%repulsive_r0 <= 0.0_wp) phys%repulsive_r0 = cfg%dx
+        ! the first fluid row starts dx/2 from the wall plane: no repulsion in the initial state
+        if (phys%repulsive_r0 <= 0.0_wp) phys%repulsive_r0 = 0.5_wp * cfg%dx
         phys%repulsive_n1 = cfg%repulsive_n1
         phys%repulsive_n2 = cfg%repulsive_n2
     end subroutine physics_from_config
