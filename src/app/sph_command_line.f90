@@ -79,8 +79,9 @@ contains
         text = &
             'usage: mpirun -np N sphremesh INPUT.nml [--restart CHECKPOINT.h5|DIR]' // nl // &
             '       sphremesh --help | --version' // nl // nl // &
-            'Smoothed Particle Hydrodynamics for low-Reynolds-number, nearly incompressible' // nl // &
-            'flows, configured by a Fortran namelist file (see doc/input.md and input/).' // nl // nl // &
+            'Smoothed Particle Hydrodynamics for low-Reynolds-number, nearly incompressible' // &
+            nl // 'flows, configured by a Fortran namelist file (see doc/input.md and input/).' // &
+            nl // nl // &
             'options:' // nl // &
             '  -h, --help         print this help and exit' // nl // &
             '  -V, --version      print the version, git hash and build options and exit' // nl // &

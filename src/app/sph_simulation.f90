@@ -71,7 +71,8 @@ contains
         do axis = 1, cfg%dimension
             if (axis_is_periodic(cfg, axis) .and. &
                 cfg%box_hi(axis) - cfg%box_lo(axis) < 2.0_wp * sim%phys%kernel%support) then
-                call fatal_collective('set-up', 'a periodic box side must be at least twice the ' // &
+                call fatal_collective('set-up', &
+                    'a periodic box side must be at least twice the ' // &
                     'kernel support radius (&domain box_lo/box_hi, &domain dx, &numerics h_factor)')
             end if
         end do
@@ -158,7 +159,8 @@ contains
             ' m, wall layers ', wall_layers(sim%phys)
         call log_info(trim(line))
         write(line, '(a,i0,a,i0,a,f6.3)') 'particles: ', global_sum(env, int(sim%p%n_owned, i8)), &
-            ' real (fluid ', global_sum(env, int(count(sim%p%kind(1:sim%p%n_owned) == KIND_FLUID), i8)), &
+            ' real (fluid ', global_sum(env, int(count(sim%p%kind(1:sim%p%n_owned) == KIND_FLUID), &
+                i8)), &
             '), load imbalance ', domain_imbalance(env, sim%p%n_owned)
         call log_info(trim(line))
     end subroutine log_setup
@@ -174,7 +176,8 @@ contains
         call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, sim%cfg%dimension, &
             code_version, sim%input_text, sim%snapshot_index, stat, errmsg)
         if (stat /= 0) call fatal_collective('checkpoint', errmsg)
-        if (all(sim%checkpoints /= path)) sim%checkpoints = [character(len=512) :: sim%checkpoints, path]
+        if (all(sim%checkpoints /= path)) &
+            sim%checkpoints = [character(len=512) :: sim%checkpoints, path]
         do while (size(sim%checkpoints) > sim%cfg%checkpoints_kept)
             if (env%rank == 0) then
                 open(newunit=unit, file=trim(sim%checkpoints(1)), status='old', iostat=stat)
@@ -268,9 +271,10 @@ contains
         ! a particle moves at most (vmax + amax dt/2) dt/2 in the half step; the list stays
         ! valid while two particles cannot close in by more than the skin. Mirrors change
         ! with the ghosts, so mirror walls always rebuild.
-        max_shift = (sim%last_limits%max_speed + 0.5_wp * dt * sim%last_limits%max_accel) * 0.5_wp * dt
-        if (2.0_wp * max_shift >= sim%list_skin .or. sim%p%n_total /= sim%p%n_owned + sim%p%n_ghost &
-            .or. uses_mirrors(sim)) then
+        max_shift = (sim%last_limits%max_speed + 0.5_wp * dt * sim%last_limits%max_accel) &
+            * 0.5_wp * dt
+        if (2.0_wp * max_shift >= sim%list_skin .or. uses_mirrors(sim) .or. &
+            sim%p%n_total /= sim%p%n_owned + sim%p%n_ghost) then
             call refresh_neighbours(sim)
         end if
         call evaluate_rates(sim, env)
@@ -418,11 +422,13 @@ contains
                 rho_max = global_max(env, fluid_extreme(sim%p, .true.))
                 remaining = (wall_now - wall_start) / real(sim%step - first_step, wp) * &
                     max(0.0_wp, (cfg%t_end - sim%time) / max(sim%last_limits%dt, tiny(1.0_wp)))
-                remaining = min(remaining, (wall_now - wall_start) / real(sim%step - first_step, wp) * &
+                remaining = min(remaining, (wall_now - wall_start) / real(sim%step - first_step, &
+                    wp) * &
                     real(cfg%max_steps - sim%step, wp))
                 write(line, '(i9,es13.5,es13.5,es16.6,es14.6,a,es12.6,es14.4,es14.3)') sim%step, &
                     sim%time, sim%last_limits%dt, global_max(env, local_max_speed(sim%p)), &
-                    rho_min, '..', rho_max, (wall_now - wall_last) / real(steps_since_log, wp), remaining
+                    rho_min, '..', rho_max, (wall_now - wall_last) / real(steps_since_log, wp), &
+                        remaining
                 call log_info(trim(line))
                 wall_last = wall_now
                 steps_since_log = 0
@@ -439,7 +445,8 @@ contains
                 100.0_wp * error, ' %'
             call log_info(trim(line))
             ! the steady profile is a meaningful reference after a few viscous times L^2/(pi^2 nu)
-            if (sim%time > 5.0_wp * (cfg%box_hi(2) - cfg%box_lo(2))**2 / (acos(-1.0_wp)**2 * cfg%nu)) then
+            if (sim%time > 5.0_wp * (cfg%box_hi(2) - cfg%box_lo(2))**2 &
+                / (acos(-1.0_wp)**2 * cfg%nu)) then
                 error = simulation_analytic_error(sim, env, steady=.true.)
                 write(line, '(a,f9.5,a)') 'error against the steady profile: relative L2 = ', &
                     100.0_wp * error, ' %'
@@ -484,7 +491,8 @@ contains
         if (stat /= 0) call fatal_collective('output', errmsg)
         rows = global_sum(env, int(sim%p%n_owned, i8))
         k = index(path, '/', back=.true.)
-        sim%snapshot_index = sim%snapshot_index // xdmf_index_entry(sim%time, sim%step, rows, path(k + 1:))
+        sim%snapshot_index = sim%snapshot_index // xdmf_index_entry(sim%time, sim%step, rows, &
+            path(k + 1:))
         xdmf_path = trim(sim%cfg%output_dir) // '/' // trim(sim%cfg%case_name) // '.xdmf'
         stat = 0
         if (env%rank == 0) call write_xdmf(xdmf_path, sim%snapshot_index, stat)
@@ -493,7 +501,8 @@ contains
         write(line, '(a,es12.5,a)') 'snapshot t = ', sim%time, ' s: ' // path
         if (trim(sim%cfg%analytic) /= 'none' .and. sim%time > 0.0_wp) then
             error = simulation_analytic_error(sim, env)
-            write(line, '(a,a,f8.4,a)') trim(line), ' (L2 error vs analytic ', 100.0_wp * error, ' %)'
+            write(line, '(a,a,f8.4,a)') trim(line), ' (L2 error vs analytic ', 100.0_wp * error, &
+                ' %)'
         end if
         call log_info(trim(line))
     end subroutine write_output

@@ -40,7 +40,8 @@ contains
                     idx = [i, j, k]
                     xi = lattice_position(idx)
                     if (domain_owner(domain, xi) /= domain%rank) cycle
-                    linear = 1 + (i - 1) + int(n_inside(1), i8) * ((j - 1) + int(n_inside(2), i8) * (k - 1))
+                    linear = 1 + (i - 1) + int(n_inside(1), i8) * ((j - 1) + int(n_inside(2), &
+                        i8) * (k - 1))
                     call add_particle(xi, linear, KIND_FLUID, [0.0_wp, 0.0_wp, 0.0_wp], 0.0_wp, &
                         [0.0_wp, 0.0_wp, 0.0_wp])
                 end do
@@ -61,7 +62,8 @@ contains
                         if (domain_owner(domain, xi) /= domain%rank) cycle
                         linear = n_fluid_total + 1 + (i - first(1)) + n_ext(1) * ((j - first(2)) + &
                             n_ext(2) * (k - first(3)))
-                        call add_particle(xi, linear, KIND_WALL, normal, distance, geo%velocity(:, face))
+                        call add_particle(xi, linear, KIND_WALL, normal, distance, geo%velocity(:, &
+                            face))
                     end do
                 end do
             end do
@@ -98,7 +100,8 @@ contains
             p%h(n) = phys%kernel%h
             p%e(n) = 0.0_wp
             p%dvdt(:, n) = 0.0_wp; p%drhodt(n) = 0.0_wp; p%dedt(n) = 0.0_wp
-            p%x_old(:, n) = x; p%v_old(:, n) = velocity; p%rho_old(n) = cfg%rho0; p%e_old(n) = 0.0_wp
+            p%x_old(:, n) = x; p%v_old(:, n) = velocity
+            p%rho_old(n) = cfg%rho0; p%e_old(n) = 0.0_wp
             p%strain(:, n) = 0.0_wp
             p%wall_normal(:, n) = wall_normal
             p%wall_distance(n) = wall_distance
@@ -132,7 +135,8 @@ contains
                         x = 0.0_wp
                         x(ax) = geo%plane(f)
                         x(t1) = cfg%box_lo(t1) + (real(a, wp) - 0.5_wp) * cfg%dx
-                        if (cfg%dimension == 3) x(t2) = cfg%box_lo(t2) + (real(b, wp) - 0.5_wp) * cfg%dx
+                        if (cfg%dimension == 3) x(t2) = cfg%box_lo(t2) + (real(b, &
+                            wp) - 0.5_wp) * cfg%dx
                         if (domain_owner(domain, x) /= domain%rank) cycle
                         call add_particle(x, id, KIND_WALL, nrm, 0.0_wp, geo%velocity(:, f))
                     end do

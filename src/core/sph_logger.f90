@@ -41,7 +41,8 @@ contains
 
     subroutine log_debug(message)
         character(len=*), intent(in) :: message
-        if (my_rank == 0 .and. level >= VERBOSITY_DEBUG) write(output_unit, '(a)') '[debug] ' // trim(message)
+        if (my_rank == 0 .and. level >= VERBOSITY_DEBUG) write(output_unit, &
+            '(a)') '[debug] ' // trim(message)
     end subroutine log_debug
 
     !> A warning known to be the same on every rank: printed once by rank 0.

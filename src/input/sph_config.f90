@@ -14,6 +14,8 @@ module sph_config
     public :: known_groups
 
     integer, parameter :: n_faces = 6
+    character(len=*), parameter :: name_chars = &
+        'abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_'
     integer, parameter :: max_output_times = 256
     integer, parameter :: name_len = 32, path_len = 512
     character(len=4), parameter :: face_names(n_faces) = &
@@ -208,7 +210,8 @@ contains
         case ('fluid'); keys = 'rho0, nu, body_force, eos, sound_speed, tait_gamma, ' // &
             'density_variation, velocity_scale, length_scale'
         case ('numerics'); keys = 'kernel, h_factor, density_method, viscosity_model, ' // &
-            'viscosity_normalisation, wall_model, cfl, viscous_safety, force_safety, beta_max, repulsive_strength, ' // &
+            'viscosity_normalisation, wall_model, cfl, viscous_safety, force_safety, ' // &
+            'beta_max, repulsive_strength, ' // &
             'repulsive_r0, repulsive_n1, repulsive_n2'
         case ('parallel'); keys = 'rebalance_threshold, rebalance_check_interval'
         case ('restart'); keys = 'checkpoint_interval_steps, checkpoint_interval_wall, ' // &
@@ -280,8 +283,7 @@ contains
                     else if (ch == '&') then
                         j = i + 1
                         do while (j <= len(lines(k)))
-                            if (verify(lines(k)(j:j), &
-                                'abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_') /= 0) exit
+                            if (verify(lines(k)(j:j), name_chars) /= 0) exit
                             j = j + 1
                         end do
                         name = to_lower(lines(k)(i + 1:j - 1))
@@ -342,7 +344,8 @@ contains
         call lower_names(cfg)
         if (len_trim(cfg%case_name) == 0 .or. verify(trim(cfg%case_name), &
             'abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-.') /= 0) &
-            call add('&run case_name', 'letters, digits, "_", "-" and "." only (used in file names)')
+            call add('&run case_name', &
+                'letters, digits, "_", "-" and "." only (used in file names)')
         if (.not. (cfg%t_end > 0.0_wp)) call add('&run t_end', 'must be > 0 (s)')
         if (cfg%max_steps < 1) call add('&run max_steps', 'must be >= 1')
         if (cfg%log_interval < 0) call add('&run log_interval', 'must be >= 0 (0 = automatic)')
@@ -386,7 +389,8 @@ contains
             if ((cfg%boundary(2*axis - 1) == 'periodic') .neqv. &
                 (cfg%boundary(2*axis) == 'periodic')) &
                 call add('&domain boundary(' // trim(face_names(2*axis - 1)) // ', ' // &
-                    trim(face_names(2*axis)) // ')', 'both faces of an axis are periodic or neither is')
+                    trim(face_names(2*axis)) // ')', &
+                        'both faces of an axis are periodic or neither is')
             if (cfg%dx > 0.0_wp) then
                 cells = length / cfg%dx
                 if (abs(cells - nint(cells)) > 1.0e-6_wp * cells .or. nint(cells) < 1) &
@@ -407,7 +411,8 @@ contains
         if (cfg%length_scale < 0.0_wp) call add('&fluid length_scale', 'must be >= 0')
         call check_choice('&numerics kernel', cfg%kernel, [character(len=12) :: 'cubic', &
             'quintic', 'wendland_c2'])
-        if (cfg%h_factor < 0.0_wp) call add('&numerics h_factor', 'must be >= 0 (0 = kernel default)')
+        if (cfg%h_factor < 0.0_wp) call add('&numerics h_factor', &
+            'must be >= 0 (0 = kernel default)')
         call check_choice('&numerics density_method', cfg%density_method, &
             [character(len=12) :: 'continuity', 'summation'])
         call check_choice('&numerics viscosity_model', cfg%viscosity_model, &
@@ -416,13 +421,15 @@ contains
             [character(len=12) :: 'lattice', 'none'])
         call check_choice('&numerics wall_model', cfg%wall_model, &
             [character(len=16) :: 'morris', 'repulsive', 'mirror', 'repulsive_mirror'])
-        if (.not. (cfg%cfl > 0.0_wp .and. cfg%cfl <= 1.0_wp)) call add('&numerics cfl', 'must lie in (0, 1]')
+        if (.not. (cfg%cfl > 0.0_wp .and. cfg%cfl <= 1.0_wp)) call add('&numerics cfl', &
+            'must lie in (0, 1]')
         if (.not. (cfg%viscous_safety > 0.0_wp .and. cfg%viscous_safety <= 0.5_wp)) &
             call add('&numerics viscous_safety', 'must lie in (0, 0.5]')
         if (.not. (cfg%force_safety > 0.0_wp .and. cfg%force_safety <= 1.0_wp)) &
             call add('&numerics force_safety', 'must lie in (0, 1]')
         if (.not. (cfg%beta_max >= 1.0_wp)) call add('&numerics beta_max', 'must be >= 1')
-        if (cfg%repulsive_strength < 0.0_wp) call add('&numerics repulsive_strength', 'must be >= 0')
+        if (cfg%repulsive_strength < 0.0_wp) call add('&numerics repulsive_strength', &
+            'must be >= 0')
         if (cfg%repulsive_r0 < 0.0_wp) call add('&numerics repulsive_r0', 'must be >= 0')
         if (cfg%repulsive_n1 <= cfg%repulsive_n2 .or. cfg%repulsive_n2 < 1) &
             call add('&numerics repulsive_n1, repulsive_n2', 'need n1 > n2 >= 1')
@@ -435,9 +442,11 @@ contains
         if (cfg%checkpoint_interval_wall < 0.0_wp) &
             call add('&restart checkpoint_interval_wall', 'must be >= 0 (s; 0 = off)')
         if (cfg%checkpoints_kept < 1) call add('&restart checkpoints_kept', 'must be >= 1')
-        if (trim(cfg%viscosity_model) == 'strain_rate' .and. (trim(cfg%wall_model) == 'mirror' &
-            .or. trim(cfg%wall_model) == 'repulsive_mirror')) call add('&numerics viscosity_model', &
-            "'strain_rate' works with wall_model = 'morris' only (mirror images do not carry a " // &
+        if (trim(cfg%viscosity_model) == 'strain_rate' .and. &
+            (trim(cfg%wall_model) == 'mirror' .or. trim(cfg%wall_model) == 'repulsive_mirror')) &
+            call add('&numerics viscosity_model', &
+            "'strain_rate' works with wall_model = 'morris' only " // &
+            '(mirror images do not carry a ' // &
             'consistent strain rate)')
         if (stat == 0) call check_analytic_case(cfg)
     contains
@@ -471,7 +480,8 @@ contains
             if (c%analytic == 'none') return
             if (c%boundary(1) /= 'periodic' .or. c%boundary(3) /= 'wall' .or. &
                 c%boundary(4) /= 'wall') &
-                call add('&run analytic', "'" // trim(c%analytic) // "' needs periodic x faces " // &
+                call add('&run analytic', "'" // trim(c%analytic) // &
+                    "' needs periodic x faces " // &
                     'and walls at ylo and yhi')
             if (c%dimension == 3 .and. c%boundary(5) /= 'periodic') &
                 call add('&run analytic', 'in 3D the z faces must be periodic')
@@ -510,7 +520,8 @@ contains
         character(len=1024) :: line
 
         call config_to_scratch(cfg)
-        open(newunit=unit, status='scratch', action='readwrite', form='formatted', delim='apostrophe')
+        open(newunit=unit, status='scratch', action='readwrite', form='formatted', &
+            delim='apostrophe')
         do g = 1, size(known_groups)
             select case (trim(known_groups(g)))
             case ('run');      write(unit, nml=run)

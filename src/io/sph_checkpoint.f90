@@ -40,7 +40,8 @@ contains
         character(len=:), allocatable :: path
         character(len=32) :: digits
         write(digits, '(i6.6)') step
-        path = trim(output_dir) // '/' // trim(case_name) // '_checkpoint_' // trim(adjustl(digits)) // '.h5'
+        path = trim(output_dir) // '/' // trim(case_name) // '_checkpoint_' // &
+            trim(adjustl(digits)) // '.h5'
     end function checkpoint_filename
 
     subroutine write_checkpoint(env, p, domain, path, time, step, dimension, code_version, &
@@ -123,7 +124,8 @@ contains
 
         same_layout = .false.
         snapshot_index = ''
-        call read_snapshot_header(env, path, time, step, dimension, n_rows, input_text, stat, errmsg)
+        call read_snapshot_header(env, path, time, step, dimension, n_rows, input_text, stat, &
+            errmsg)
         if (stat /= 0) return
         call h5_open_read(env, path, file, stat)
         if (stat /= 0) then

@@ -166,7 +166,8 @@ contains
                 start = [int(offset, hsize_t), 0_hsize_t]
                 count = [int(local, hsize_t), 1_hsize_t]
             end if
-            call h5sselect_hyperslab_f(filespace, H5S_SELECT_SET_F, start(1:rank), count(1:rank), ierr)
+            call h5sselect_hyperslab_f(filespace, H5S_SELECT_SET_F, start(1:rank), count(1:rank), &
+                ierr)
             call check_h5(ierr, 'h5sselect_hyperslab_f')
             mdims = count
             call h5screate_simple_f(rank, mdims(1:rank), memspace, ierr)
@@ -236,9 +237,11 @@ contains
         call row_spaces(dset, 0, local, offset, filespace, memspace)
         dummy = 0.0_wp
         if (local > 0) then
-            call h5dwrite_f(dset, H5T_NATIVE_DOUBLE, c_loc(values), ierr, memspace, filespace, file%xfer)
+            call h5dwrite_f(dset, H5T_NATIVE_DOUBLE, c_loc(values), ierr, memspace, filespace, &
+                file%xfer)
         else
-            call h5dwrite_f(dset, H5T_NATIVE_DOUBLE, c_loc(dummy), ierr, memspace, filespace, file%xfer)
+            call h5dwrite_f(dset, H5T_NATIVE_DOUBLE, c_loc(dummy), ierr, memspace, filespace, &
+                file%xfer)
         end if
         call check_h5(ierr, 'h5dwrite_f ' // name)
         call finish_rows(dset, filespace, memspace)
@@ -263,9 +266,11 @@ contains
         call row_spaces(dset, 3, local, offset, filespace, memspace)
         dummy = 0.0_wp
         if (local > 0) then
-            call h5dwrite_f(dset, H5T_NATIVE_DOUBLE, c_loc(values), ierr, memspace, filespace, file%xfer)
+            call h5dwrite_f(dset, H5T_NATIVE_DOUBLE, c_loc(values), ierr, memspace, filespace, &
+                file%xfer)
         else
-            call h5dwrite_f(dset, H5T_NATIVE_DOUBLE, c_loc(dummy), ierr, memspace, filespace, file%xfer)
+            call h5dwrite_f(dset, H5T_NATIVE_DOUBLE, c_loc(dummy), ierr, memspace, filespace, &
+                file%xfer)
         end if
         call check_h5(ierr, 'h5dwrite_f ' // name)
         call finish_rows(dset, filespace, memspace)

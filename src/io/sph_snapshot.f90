@@ -99,7 +99,8 @@ contains
         allocate(rows(p%n_owned))
         n = 0
         do i = 1, p%n_owned
-            if (p%kind(i) == KIND_FLUID .or. p%kind(i) == KIND_WALL .or. p%kind(i) == KIND_VIRTUAL) then
+            if (p%kind(i) == KIND_FLUID .or. p%kind(i) == KIND_WALL .or. &
+                p%kind(i) == KIND_VIRTUAL) then
                 n = n + 1
                 rows(n) = i
             end if

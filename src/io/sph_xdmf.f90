@@ -47,7 +47,8 @@ contains
         write(unit, '(a)') '<?xml version="1.0" ?>'
         write(unit, '(a)') '<Xdmf Version="3.0">'
         write(unit, '(a)') ' <Domain>'
-        write(unit, '(a)') '  <Grid Name="particles" GridType="Collection" CollectionType="Temporal">'
+        write(unit, '(a)') '  <Grid Name="particles" GridType="Collection" ' // &
+            'CollectionType="Temporal">'
         start = 1
         do k = 1, len(index_text)
             if (index_text(k:k) /= new_line('a')) cycle
@@ -62,7 +63,8 @@ contains
             write(unit, '(a)') '    <Geometry GeometryType="XYZ">'
             call data_item('position', 'Float', 8, trim(n_text) // ' 3')
             write(unit, '(a)') '    </Geometry>'
-            write(unit, '(a)') '    <Attribute Name="velocity" AttributeType="Vector" Center="Node">'
+            write(unit, '(a)') '    <Attribute Name="velocity" AttributeType="Vector" ' // &
+                'Center="Node">'
             call data_item('velocity', 'Float', 8, trim(n_text) // ' 3')
             write(unit, '(a)') '    </Attribute>'
             do f = 1, size(scalars)

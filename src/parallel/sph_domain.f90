@@ -211,9 +211,11 @@ contains
             do j = 1, n
                 kk = findloc(active, node_of(j), dim=1)
                 if (kk == 0) cycle
-                if (x(domain%node_axis(active(kk)), j) < cut(kk)) below_local(kk) = below_local(kk) + 1.0_wp
+                if (x(domain%node_axis(active(kk)), &
+                    j) < cut(kk)) below_local(kk) = below_local(kk) + 1.0_wp
             end do
-            call MPI_Allreduce(below_local, result_weight, size(cut), mpi_wp, MPI_SUM, env%comm, ierr)
+            call MPI_Allreduce(below_local, result_weight, size(cut), mpi_wp, MPI_SUM, env%comm, &
+                ierr)
             call check_mpi(ierr, 'domain_partition')
         end subroutine weight_below
 
@@ -223,7 +225,8 @@ contains
             nd = active(kk)
             ax = domain%node_axis(nd)
             geometric_cut = nlo(ax, nd) + (nhi(ax, nd) - nlo(ax, nd)) * &
-                real((rank_hi(nd) - rank_lo(nd) + 1) / 2, wp) / real(rank_hi(nd) - rank_lo(nd) + 1, wp)
+                real((rank_hi(nd) - rank_lo(nd) + 1) / 2, &
+                    wp) / real(rank_hi(nd) - rank_lo(nd) + 1, wp)
         end function geometric_cut
     end subroutine domain_partition
 
@@ -381,7 +384,8 @@ contains
             call check_mpi(ierr, 'migrate_particles check')
             culprits = ''
             do r = 0, env%nranks - 1
-                write(item, '(a,i0,a,i0,a,i0,a,i0,a,i0,a)') ' rank ', r, ' (had ', all_counts(1, r), &
+                write(item, '(a,i0,a,i0,a,i0,a,i0,a,i0,a)') ' rank ', r, ' (had ', all_counts(1, &
+                    r), &
                     ', sent ', all_counts(2, r), ', received ', all_counts(3, r), ', now ', &
                     all_counts(4, r), ')'
                 culprits = culprits // trim(item)

@@ -65,7 +65,8 @@ contains
                         shift = [sx, sy, sz] * domain%length
                         if (boxes_touch(domain%box_lo(:, domain%rank) + shift, &
                                         domain%box_hi(:, domain%rank) + shift, &
-                                        domain%box_lo(:, r) - reach, domain%box_hi(:, r) + reach)) then
+                                        domain%box_lo(:, r) - reach, domain%box_hi(:, &
+                                            r) + reach)) then
                             ranks = [ranks, r]
                             shifts = reshape([shifts, shift], [3, size(ranks)])
                         end if
@@ -176,7 +177,8 @@ contains
             xs = p%x(:, ii) + halo%partner_shift(:, kk)
             lo = domain%box_lo(:, r) - halo%reach
             hi = domain%box_hi(:, r) + halo%reach
-            reaches = all(xs(1:domain%dim) >= lo(1:domain%dim) .and. xs(1:domain%dim) <= hi(1:domain%dim))
+            reaches = all(xs(1:domain%dim) >= lo(1:domain%dim) .and. &
+                xs(1:domain%dim) <= hi(1:domain%dim))
             if (reaches .and. r == domain%rank) then
                 ! an image in this rank's own region but outside its box is still a ghost;
                 ! the image of a particle onto itself (zero shift) never is

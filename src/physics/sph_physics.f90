@@ -86,7 +86,8 @@ contains
         if (length <= 0.0_wp) then
             length = huge(1.0_wp)
             do axis = 1, cfg%dimension
-                if (cfg%is_wall(2*axis - 1)) length = min(length, cfg%box_hi(axis) - cfg%box_lo(axis))
+                if (cfg%is_wall(2*axis - 1)) length = min(length, &
+                    cfg%box_hi(axis) - cfg%box_lo(axis))
             end do
             if (length == huge(1.0_wp)) length = minval(cfg%box_hi(1:cfg%dimension) - &
                 cfg%box_lo(1:cfg%dimension))
@@ -144,7 +145,8 @@ contains
                     d = [i, j, k] * dx
                     r = norm2(d)
                     if (r >= kernel%support) cycle
-                    moment = moment + dx**kernel%dim * (-r * kernel%dwdr(r)) * d(2)**2 / (r * r + eta2)
+                    moment = moment + dx**kernel%dim * (-r * kernel%dwdr(r)) * d(2)**2 &
+                        / (r * r + eta2)
                 end do
             end do
         end do

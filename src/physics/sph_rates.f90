@@ -85,7 +85,8 @@ contains
     end subroutine compute_summation_density
 
     !> Strain rate (thesis eq. 2.16, corrected) of owned particles:
-    !> eps^ab = sum_j m_j/rho_j (v_ji^b dW/dx^a + v_ji^a dW/dx^b) - 2/3 delta^ab sum_j m_j/rho_j v_ji . grad W
+    !> eps^ab = sum_j m_j/rho_j (v_ji^b dW/dx^a + v_ji^a dW/dx^b)
+    !>          - 2/3 delta^ab sum_j m_j/rho_j v_ji . grad W
     !> (the 2/3 of a three-dimensional fluid is kept in 2D: plane flow of a real fluid).
     subroutine compute_strain_rate(phys, p, nl)
         type(physics_t), intent(in) :: phys
