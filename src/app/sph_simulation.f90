@@ -26,6 +26,7 @@ module sph_simulation
     use sph_checkpoint, only: write_checkpoint, read_checkpoint, checkpoint_filename, &
         find_latest_checkpoint
     use sph_xdmf, only: xdmf_index_entry, write_xdmf
+    use sph_filesystem, only: delete_file
     use sph_version, only: code_version
     implicit none
     private
@@ -171,7 +172,7 @@ contains
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
         character(len=:), allocatable :: path, errmsg
-        integer :: stat, unit
+        integer :: stat
         path = checkpoint_filename(trim(sim%cfg%output_dir), trim(sim%cfg%case_name), sim%step)
         call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, sim%cfg%dimension, &
             code_version, sim%input_text, sim%snapshot_index, stat, errmsg)
@@ -179,10 +180,7 @@ contains
         if (all(sim%checkpoints /= path)) &
             sim%checkpoints = [character(len=512) :: sim%checkpoints, path]
         do while (size(sim%checkpoints) > sim%cfg%checkpoints_kept)
-            if (env%rank == 0) then
-                open(newunit=unit, file=trim(sim%checkpoints(1)), status='old', iostat=stat)
-                if (stat == 0) close(unit, status='delete')
-            end if
+            if (env%rank == 0) call delete_file(trim(sim%checkpoints(1)))
             sim%checkpoints = sim%checkpoints(2:)
         end do
         call log_info('checkpoint: ' // path)

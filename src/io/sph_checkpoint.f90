@@ -5,13 +5,13 @@
 !> decomposition, so the continued run repeats the uninterrupted one bit for bit; on another
 !> rank count the rows are shared out evenly and the caller rebuilds the decomposition.
 module sph_checkpoint
-    use, intrinsic :: iso_c_binding, only: c_char, c_int, c_null_char
     use sph_kinds, only: wp, i4, i8
     use sph_mpi_env, only: mpi_env_t, broadcast_text
     use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL
     use sph_domain, only: domain_t, domain_set_tree
     use sph_hdf5, only: h5_file_t, h5_open_read, h5_close, h5_group_create, h5_write_rows, &
         h5_read_rows, h5_dataset_rows, h5_write_attribute, h5_read_attribute
+    use sph_filesystem, only: list_directory
     use sph_snapshot, only: snapshot_begin, snapshot_end, read_snapshot_header, &
         read_snapshot_rows
     implicit none
@@ -20,17 +20,7 @@ module sph_checkpoint
     public :: checkpoint_format_version
 
     integer(i4), parameter :: checkpoint_format_version = 1
-    integer, parameter :: listing_capacity = 4 * 1024 * 1024
 
-    interface
-        integer(c_int) function c_list_directory(path, buffer, capacity) &
-                bind(C, name="sph_list_directory")
-            import :: c_char, c_int
-            character(kind=c_char), intent(in) :: path(*)
-            character(kind=c_char), intent(out) :: buffer(*)
-            integer(c_int), value :: capacity
-        end function c_list_directory
-    end interface
 
 contains
 
@@ -186,10 +176,9 @@ contains
         character(len=:), allocatable, intent(out) :: path, skipped, errmsg
         integer, intent(out) :: stat
         character(len=:), allocatable :: listing, prefix, name, candidate, text, reason
-        character(kind=c_char), allocatable :: buffer(:)
         integer(i8), allocatable :: steps(:)
         character(len=512), allocatable :: names(:)
-        integer :: used, k, start, n, best, digits_stat, dim
+        integer :: k, start, n, best, digits_stat, dim
         integer(i8) :: step, rows
         real(wp) :: time
 
@@ -198,16 +187,8 @@ contains
         errmsg = ''
         listing = ''
         if (env%rank == 0) then
-            allocate(buffer(listing_capacity))
-            used = c_list_directory(trim(directory) // c_null_char, buffer, listing_capacity)
-            if (used >= 0) then
-                listing = repeat(" ", used)
-                do k = 1, used
-                    listing(k:k) = buffer(k)
-                end do
-            else
-                listing = achar(0)
-            end if
+            call list_directory(directory, listing, stat)
+            if (stat /= 0) listing = achar(0)
         end if
         call broadcast_text(env, listing)
         if (listing == achar(0)) then

@@ -3,7 +3,7 @@
 !> takes part in every call, also a rank with no rows (it selects nothing). Every HDF5 return
 !> code is checked here; HDF5's own error printing is switched off in favour of our messages.
 module sph_hdf5
-    use, intrinsic :: iso_c_binding, only: c_loc, c_ptr, c_int, c_char, c_null_char
+    use, intrinsic :: iso_c_binding, only: c_loc, c_ptr, c_null_char
     use hdf5
     use mpi_f08, only: MPI_INFO_NULL
     use sph_kinds, only: wp, i4, i8
@@ -13,7 +13,7 @@ module sph_hdf5
     private
     public :: h5_file_t, h5_create, h5_open_read, h5_close, check_h5, h5_group_create
     public :: h5_write_rows, h5_read_rows, h5_dataset_rows, h5_exists
-    public :: h5_write_attribute, h5_read_attribute, h5_attribute_exists, make_directories
+    public :: h5_write_attribute, h5_read_attribute, h5_attribute_exists
 
     !> An open file and the collective transfer property used for its datasets.
     type :: h5_file_t
@@ -35,13 +35,6 @@ module sph_hdf5
         module procedure read_attr_wp, read_attr_i8, read_attr_i4, read_attr_text
     end interface
 
-    interface
-        integer(c_int) function c_mkdir(path, mode) bind(C, name="mkdir")
-            import :: c_char, c_int
-            character(kind=c_char), intent(in) :: path(*)
-            integer(c_int), value :: mode
-        end function c_mkdir
-    end interface
 
     logical, save :: library_open = .false.
 
@@ -630,26 +623,4 @@ contains
         if (k > 0) value = value(1:k - 1)
     end subroutine read_attr_text
 
-    !> mkdir -p (serial: rank 0 calls it). stat /= 0 when a component cannot be made.
-    subroutine make_directories(path, stat)
-        character(len=*), intent(in) :: path
-        integer, intent(out) :: stat
-        integer :: k
-        logical :: exists
-        integer(c_int) :: rc
-        stat = 0
-        do k = 2, len_trim(path) + 1
-            if (k <= len_trim(path)) then
-                if (path(k:k) /= '/') cycle
-            end if
-            inquire(file=path(1:k - 1) // '/.', exist=exists)
-            if (exists) cycle
-            rc = c_mkdir(path(1:k - 1) // c_null_char, int(o'755', c_int))
-            inquire(file=path(1:k - 1) // '/.', exist=exists)
-            if (.not. exists) then
-                stat = 1
-                return
-            end if
-        end do
-    end subroutine make_directories
 end module sph_hdf5

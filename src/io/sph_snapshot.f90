@@ -3,14 +3,14 @@
 !> ghosts or mirrors). Written under a temporary name, completed by a `write_complete`
 !> attribute written last, then renamed, so a file with the final name is always whole.
 module sph_snapshot
-    use, intrinsic :: iso_c_binding, only: c_int, c_char, c_null_char
     use sph_kinds, only: wp, i4, i8
     use sph_mpi_env, only: mpi_env_t, global_sum, global_max
     use sph_errors, only: fatal_collective
     use sph_particles, only: particles_t, particles_reserve, KIND_FLUID, KIND_WALL, KIND_VIRTUAL
     use sph_hdf5, only: h5_file_t, h5_create, h5_open_read, h5_close, h5_group_create, &
         h5_write_rows, h5_read_rows, h5_dataset_rows, h5_write_attribute, h5_read_attribute, &
-        h5_attribute_exists, make_directories
+        h5_attribute_exists
+    use sph_filesystem, only: make_directories, rename_file
     implicit none
     private
     public :: write_snapshot, snapshot_filename, read_snapshot_header, read_snapshot_rows
@@ -18,12 +18,6 @@ module sph_snapshot
 
     integer(i4), parameter :: snapshot_format_version = 1
 
-    interface
-        integer(c_int) function c_rename(old, new) bind(C, name="rename")
-            import :: c_char, c_int
-            character(kind=c_char), intent(in) :: old(*), new(*)
-        end function c_rename
-    end interface
 
 contains
 
@@ -155,9 +149,7 @@ contains
         call h5_write_attribute(file, 'write_complete', 1_i4)
         call h5_close(file)
         stat = 0
-        if (env%rank == 0) then
-            if (c_rename(path // '.tmp' // c_null_char, path // c_null_char) /= 0) stat = 1
-        end if
+        if (env%rank == 0) call rename_file(path // '.tmp', path, stat)
         if (global_max(env, int(stat, i8)) /= 0) then
             stat = 1
             errmsg = "cannot rename '" // path // ".tmp' to '" // path // "'"

@@ -2,18 +2,12 @@
 !> at once: one Polyvertex grid per snapshot, pointing into its HDF5 datasets. Written by
 !> rank 0 alone, after each snapshot file is complete, under a temporary name then renamed.
 module sph_xdmf
-    use, intrinsic :: iso_c_binding, only: c_char, c_int, c_null_char
     use sph_kinds, only: wp, i8
+    use sph_filesystem, only: rename_file
     implicit none
     private
     public :: xdmf_index_entry, write_xdmf
 
-    interface
-        integer(c_int) function c_rename(old, new) bind(C, name="rename")
-            import :: c_char, c_int
-            character(kind=c_char), intent(in) :: old(*), new(*)
-        end function c_rename
-    end interface
 
 contains
 
@@ -90,7 +84,7 @@ contains
         write(unit, '(a)') '</Xdmf>'
         close(unit, iostat=stat)
         if (stat /= 0) return
-        if (c_rename(path // '.tmp' // c_null_char, path // c_null_char) /= 0) stat = 1
+        call rename_file(path // '.tmp', path, stat)
     contains
         subroutine data_item(dataset, number_type, precision, dimensions)
             character(len=*), intent(in) :: dataset, number_type, dimensions
