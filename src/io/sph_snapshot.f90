@@ -1,36 +1,65 @@
 !> Snapshot files (schema in doc/output.md): one HDF5 file per output time, written
-!> collectively, one row per real particle (owned fluid, wall and virtual particles; never
-!> ghosts or mirrors). Written under a temporary name, completed by a `write_complete`
-!> attribute written last, then renamed, so a file with the final name is always whole.
+!> collectively through sph_hdf5, one row per real particle (owned fluid, wall and virtual
+!> particles; never ghosts or mirrors), rows grouped by rank.
+!>
+!> Safe writing: rank 0 makes the folder (mkdir -p), the file is written as `path`.tmp, the
+!> root attribute `write_complete` is written last before closing, and rank 0 renames the
+!> closed file to `path`; nobody returns before the rename. A file with the final name is
+!> therefore whole, and the readers refuse a file without the marker, naming it.
+!>
+!> Every routine is collective on env%comm and returns the same stat on every rank (agreed
+!> with an MPI reduction), so a caller may stop collectively on it. Library convention:
+!> optional stat/errmsg; without stat a failure stops through sph_errors.
 module sph_snapshot
     use sph_kinds, only: wp, i4, i8
-    use sph_mpi_env, only: mpi_env_t, global_sum, global_max
-    use sph_errors, only: fatal_collective
+    use sph_mpi_env, only: mpi_env_t, global_max, broadcast_text
+    use sph_errors, only: fatal_collective, fatal_abort
     use sph_particles, only: particles_t, particles_reserve, KIND_FLUID, KIND_WALL, KIND_VIRTUAL
     use sph_hdf5, only: h5_file_t, h5_create, h5_open_read, h5_close, h5_group_create, &
-        h5_write_rows, h5_read_rows, h5_dataset_rows, h5_write_attribute, h5_read_attribute, &
-        h5_attribute_exists
+        h5_row_layout, h5_write_rows, h5_read_rows, h5_dataset_rows, h5_write_attribute, &
+        h5_read_attribute
     use sph_filesystem, only: make_directories, rename_file
     implicit none
     private
-    public :: write_snapshot, snapshot_filename, read_snapshot_header, read_snapshot_rows
-    public :: snapshot_format_version, snapshot_begin, snapshot_end
+    public :: write_snapshot, snapshot_filename, read_snapshot_header, read_particles_rows
+    public :: read_snapshot_rows
+    public :: snapshot_begin, snapshot_end
+    public :: snapshot_format_name, snapshot_format_version
 
+    character(len=*), parameter :: snapshot_format_name = 'sphremesh-snapshot'
     integer(i4), parameter :: snapshot_format_version = 1
 
+    !> (env, path, time, step, dimension, n_rows [, input_text] [, stat, errmsg])
+    interface read_snapshot_header
+        module procedure read_header, read_header_with_input
+    end interface
+    !> The name sph_checkpoint uses for read_particles_rows (one procedure, two names).
+    interface read_snapshot_rows
+        module procedure read_particles_rows
+    end interface
+
+    !> The particle datasets and their widths (0: one column); the row count is that of `id`.
+    integer, parameter :: n_datasets = 11
+    character(len=*), parameter :: dataset_names(n_datasets) = [character(len=16) :: &
+        'position', 'velocity', 'density', 'pressure', 'mass', 'smoothing_length', 'energy', &
+        'id', 'kind', 'level', 'rank']
+    integer, parameter :: dataset_widths(n_datasets) = [3, 3, 0, 0, 0, 0, 0, 0, 0, 0, 0]
 
 contains
 
-    !> <dir>/<case>_<step, at least 6 digits>.h5
+    !> `<output_dir>/<case_name>_<step>.h5`, the step with at least 6 digits (more when
+    !> step >= 10**6).
     function snapshot_filename(output_dir, case_name, step) result(path)
         character(len=*), intent(in) :: output_dir, case_name
         integer(i8), intent(in) :: step
         character(len=:), allocatable :: path
         character(len=32) :: digits
-        write(digits, '(i6.6)') step
-        path = trim(output_dir) // '/' // trim(case_name) // '_' // trim(adjustl(digits)) // '.h5'
+        write(digits, '(i0.6)') step
+        path = trim(output_dir) // '/' // trim(case_name) // '_' // trim(digits) // '.h5'
     end function snapshot_filename
 
+    !> Write one snapshot collectively (every rank, also one without particles). The text
+    !> arguments must be the same on every rank (they become attributes).
     subroutine write_snapshot(env, p, path, time, step, dimension, code_version, input_text, &
                               stat, errmsg)
         type(mpi_env_t), intent(in) :: env
@@ -47,16 +76,13 @@ contains
         call snapshot_begin(env, p, path, time, step, dimension, code_version, input_text, &
             file, my_stat, message)
         if (my_stat == 0) call snapshot_end(env, path, file, my_stat, message)
-        if (present(stat)) then
-            stat = my_stat
-            if (present(errmsg)) errmsg = message
-        else if (my_stat /= 0) then
-            call fatal_collective('write_snapshot', message)
-        end if
+        call finish(my_stat, message, 'write_snapshot', stat)
+        if (present(errmsg)) errmsg = message
     end subroutine write_snapshot
 
-    !> Create `path`.tmp and write the attributes and particle datasets; the caller may add
-    !> more (checkpoints do) before snapshot_end.
+    !> Make the folder, create `path`.tmp and write the root attributes and the particle
+    !> datasets; the caller may add more (checkpoints do) before snapshot_end. On failure
+    !> (stat /= 0, the same on every rank) no file is left open.
     subroutine snapshot_begin(env, p, path, time, step, dimension, code_version, input_text, &
                               file, stat, errmsg)
         type(mpi_env_t), intent(in) :: env
@@ -68,28 +94,35 @@ contains
         type(h5_file_t), intent(out) :: file
         integer, intent(out) :: stat
         character(len=:), allocatable, intent(out) :: errmsg
-        integer :: n, i, k, dir_end
+        integer :: n, i, dir_end, my_stat
+        integer(i8) :: offset, total
         integer, allocatable :: rows(:)
         real(wp), allocatable :: v3(:, :), v1(:)
         integer(i8), allocatable :: ids(:)
         integer(i4), allocatable :: ints(:)
+        character(len=:), allocatable :: date
 
         errmsg = ''
-        ! rank 0 makes the directory; everybody learns whether it worked
+        ! rank 0 makes the folder (libc mkdir through sph_filesystem: no shell, no quoting,
+        ! a real status); everybody learns whether it worked
         stat = 0
         dir_end = index(path, '/', back=.true.)
         if (env%rank == 0 .and. dir_end > 1) call make_directories(path(1:dir_end - 1), stat)
-        if (global_max(env, int(stat, i8)) /= 0) then
-            stat = 1
-            errmsg = "cannot create the output directory '" // path(1:max(dir_end - 1, 0)) // "'"
-            return
-        end if
-        call h5_create(env, path // '.tmp', file, stat)
+        stat = agreed(env, stat)
         if (stat /= 0) then
-            errmsg = "cannot create the file '" // path // ".tmp'"
+            errmsg = "cannot create the output directory '" // path(1:max(dir_end - 1, 0)) // &
+                "' for '" // path // "'"
             return
         end if
-        ! rows: owned real particles
+        call h5_create(env, path // '.tmp', file, my_stat, errmsg)
+        stat = agreed(env, my_stat)
+        if (stat /= 0) then
+            if (my_stat == 0) call fatal_abort('snapshot_begin', "'" // path // &
+                ".tmp' was created on some ranks only")
+            return
+        end if
+
+        ! the rows: owned real particles, in their storage order
         allocate(rows(p%n_owned))
         n = 0
         do i = 1, p%n_owned
@@ -99,67 +132,107 @@ contains
                 rows(n) = i
             end if
         end do
+        call h5_row_layout(env, n, offset, total)
+
+        ! attributes are metadata: the same value on every rank, so the date is rank 0's
+        date = ''
+        if (env%rank == 0) date = iso_date_utc()
+        call broadcast_text(env, date)
         call h5_write_attribute(file, 'time', time)
         call h5_write_attribute(file, 'step', step)
         call h5_write_attribute(file, 'dimension', int(dimension, i4))
         call h5_write_attribute(file, 'code_version', code_version)
         call h5_write_attribute(file, 'input', input_text)
         call h5_write_attribute(file, 'nranks', int(env%nranks, i4))
-        call h5_write_attribute(file, 'date', iso_date())
-        call h5_write_attribute(file, 'format', 'sphremesh-snapshot')
+        call h5_write_attribute(file, 'date', date)
+        call h5_write_attribute(file, 'format', snapshot_format_name)
         call h5_write_attribute(file, 'format_version', snapshot_format_version)
+
         call h5_group_create(file, 'particles')
         allocate(v3(3, max(n, 1)), v1(max(n, 1)), ids(max(n, 1)), ints(max(n, 1)))
-        do k = 1, n
-            v3(:, k) = p%x(:, rows(k))
-        end do
-        call h5_write_rows(env, file, 'particles/position', v3, n)
-        do k = 1, n
-            v3(:, k) = p%v(:, rows(k))
-        end do
-        call h5_write_rows(env, file, 'particles/velocity', v3, n)
+        v3(:, 1:n) = p%x(:, rows(1:n))
+        call h5_write_rows(env, file, 'particles/position', v3, n, offset, total)
+        v3(:, 1:n) = p%v(:, rows(1:n))
+        call h5_write_rows(env, file, 'particles/velocity', v3, n, offset, total)
         v1(1:n) = p%rho(rows(1:n))
-        call h5_write_rows(env, file, 'particles/density', v1, n)
+        call h5_write_rows(env, file, 'particles/density', v1, n, offset, total)
         v1(1:n) = p%p(rows(1:n))
-        call h5_write_rows(env, file, 'particles/pressure', v1, n)
+        call h5_write_rows(env, file, 'particles/pressure', v1, n, offset, total)
         v1(1:n) = p%m(rows(1:n))
-        call h5_write_rows(env, file, 'particles/mass', v1, n)
+        call h5_write_rows(env, file, 'particles/mass', v1, n, offset, total)
         v1(1:n) = p%h(rows(1:n))
-        call h5_write_rows(env, file, 'particles/smoothing_length', v1, n)
+        call h5_write_rows(env, file, 'particles/smoothing_length', v1, n, offset, total)
         v1(1:n) = p%e(rows(1:n))
-        call h5_write_rows(env, file, 'particles/energy', v1, n)
+        call h5_write_rows(env, file, 'particles/energy', v1, n, offset, total)
         ids(1:n) = p%id(rows(1:n))
-        call h5_write_rows(env, file, 'particles/id', ids, n)
+        call h5_write_rows(env, file, 'particles/id', ids, n, offset, total)
         ints(1:n) = int(p%kind(rows(1:n)), i4)
-        call h5_write_rows(env, file, 'particles/kind', ints, n)
+        call h5_write_rows(env, file, 'particles/kind', ints, n, offset, total)
         ints(1:n) = int(p%level(rows(1:n)), i4)
-        call h5_write_rows(env, file, 'particles/level', ints, n)
+        call h5_write_rows(env, file, 'particles/level', ints, n, offset, total)
         ints(1:n) = int(env%rank, i4)
-        call h5_write_rows(env, file, 'particles/rank', ints, n)
+        call h5_write_rows(env, file, 'particles/rank', ints, n, offset, total)
     end subroutine snapshot_begin
 
-    !> The write_complete marker last, close, and rename `path`.tmp to `path` (rank 0).
+    !> The write_complete marker last, close, and rename `path`.tmp to `path` (rank 0). The
+    !> closing reduction waits for rank 0's rename, so it is also the barrier after it.
     subroutine snapshot_end(env, path, file, stat, errmsg)
         type(mpi_env_t), intent(in) :: env
         character(len=*), intent(in) :: path
         type(h5_file_t), intent(inout) :: file
         integer, intent(out) :: stat
         character(len=:), allocatable, intent(out) :: errmsg
+        integer :: my_stat
         errmsg = ''
         call h5_write_attribute(file, 'write_complete', 1_i4)
-        call h5_close(file)
-        stat = 0
-        if (env%rank == 0) call rename_file(path // '.tmp', path, stat)
-        if (global_max(env, int(stat, i8)) /= 0) then
-            stat = 1
-            errmsg = "cannot rename '" // path // ".tmp' to '" // path // "'"
+        call h5_close(file, my_stat)
+        stat = agreed(env, my_stat)
+        if (stat /= 0) then
+            errmsg = "closing '" // path // ".tmp' failed: the snapshot is not complete"
+            return
         end if
+        if (env%rank == 0) call rename_file(path // '.tmp', path, my_stat)
+        stat = agreed(env, my_stat)
+        if (stat /= 0) errmsg = "cannot rename '" // path // ".tmp' to '" // path // "'"
     end subroutine snapshot_end
 
-    !> Header of a snapshot; refuses (stat /= 0, message naming the file) a file that cannot
-    !> be opened or lacks the write_complete marker.
-    subroutine read_snapshot_header(env, path, time, step, dimension, n_rows, input_text, &
-                                    stat, errmsg)
+    !> The header of a snapshot (or checkpoint). Refuses a file that cannot be opened, lacks
+    !> the write_complete marker or is not a sphremesh snapshot of format version 1.
+    subroutine read_header(env, path, time, step, dimension, n_rows, stat, errmsg)
+        type(mpi_env_t), intent(in) :: env
+        character(len=*), intent(in) :: path
+        real(wp), intent(out) :: time
+        integer(i8), intent(out) :: step, n_rows   !< n_rows: rows in the file, all ranks
+        integer, intent(out) :: dimension
+        integer, intent(out), optional :: stat
+        character(len=:), allocatable, intent(out), optional :: errmsg
+        character(len=:), allocatable :: input_text, message
+        integer :: status
+        call header(env, path, time, step, dimension, n_rows, input_text, status, message)
+        call finish(status, message, 'read_snapshot_header', stat)
+        if (present(errmsg)) errmsg = message
+    end subroutine read_header
+
+    !> As read_header, also returning the input text the run was made with.
+    subroutine read_header_with_input(env, path, time, step, dimension, n_rows, input_text, &
+                                      stat, errmsg)
+        type(mpi_env_t), intent(in) :: env
+        character(len=*), intent(in) :: path
+        real(wp), intent(out) :: time
+        integer(i8), intent(out) :: step, n_rows
+        integer, intent(out) :: dimension
+        character(len=:), allocatable, intent(out) :: input_text
+        integer, intent(out), optional :: stat
+        character(len=:), allocatable, intent(out), optional :: errmsg
+        character(len=:), allocatable :: message
+        integer :: status
+        call header(env, path, time, step, dimension, n_rows, input_text, status, message)
+        call finish(status, message, 'read_snapshot_header', stat)
+        if (present(errmsg)) errmsg = message
+    end subroutine read_header_with_input
+
+    !> The header, with a status agreed by all ranks and a message naming the file.
+    subroutine header(env, path, time, step, dimension, n_rows, input_text, stat, message)
         type(mpi_env_t), intent(in) :: env
         character(len=*), intent(in) :: path
         real(wp), intent(out) :: time
@@ -167,62 +240,77 @@ contains
         integer, intent(out) :: dimension
         character(len=:), allocatable, intent(out) :: input_text
         integer, intent(out) :: stat
-        character(len=:), allocatable, intent(out) :: errmsg
+        character(len=:), allocatable, intent(out) :: message
         type(h5_file_t) :: file
-        integer(i4) :: dim4, complete
-        errmsg = ''
-        time = 0; step = 0; n_rows = 0; dimension = 0
+        integer :: my_stat
+        integer(i4) :: dim4
+        time = 0; step = 0; n_rows = 0; dimension = 0; dim4 = 0
         input_text = ''
-        call h5_open_read(env, path, file, stat)
-        if (stat /= 0) then
-            errmsg = "cannot open '" // path // "' as an HDF5 file (missing or truncated)"
-            return
-        end if
-        call h5_read_attribute(file, 'write_complete', complete, stat)
-        if (stat /= 0 .or. complete /= 1) then
-            stat = 1
-            errmsg = "'" // path // "' is incomplete (no write_complete marker): refused"
+        call open_checked(env, path, file, my_stat, message)
+        if (my_stat == 0) then
+            call h5_read_attribute(file, 'time', time, my_stat)
+            if (my_stat == 0) call h5_read_attribute(file, 'step', step, my_stat)
+            if (my_stat == 0) call h5_read_attribute(file, 'dimension', dim4, my_stat)
+            if (my_stat == 0) call h5_read_attribute(file, 'input', input_text, my_stat)
+            if (my_stat == 0) call check_datasets(file, n_rows, my_stat, message)
+            if (my_stat /= 0 .and. len(message) == 0) message = "'" // path // &
+                "' lacks the snapshot attributes (time, step, dimension, input): refused"
+            dimension = dim4
             call h5_close(file)
-            return
         end if
-        call h5_read_attribute(file, 'time', time, stat)
-        if (stat == 0) call h5_read_attribute(file, 'step', step, stat)
-        if (stat == 0) call h5_read_attribute(file, 'dimension', dim4, stat)
-        if (stat == 0) call h5_read_attribute(file, 'input', input_text, stat)
-        dimension = dim4
-        n_rows = h5_dataset_rows(file, 'particles/id')
-        if (stat /= 0 .or. n_rows < 0) then
-            stat = 1
-            errmsg = "'" // path // "' lacks the snapshot attributes or datasets"
-        end if
-        call h5_close(file)
-    end subroutine read_snapshot_header
+        stat = agreed(env, my_stat)
+        if (stat /= 0 .and. my_stat == 0) message = "'" // path // "' is refused on another rank"
+    end subroutine header
 
-    !> Rows first_row .. first_row + n - 1 (0-based) become this rank's owned particles.
-    subroutine read_snapshot_rows(env, path, p, first_row, n, stat, errmsg)
+    !> Rows first_row .. first_row + n_rows - 1 (0-based; each rank its own range, possibly
+    !> empty) become this rank's owned particles; ghosts are dropped, p%dim is set from the
+    !> file, and the fields a snapshot does not hold (start-of-step copies, rates, strain,
+    !> wall geometry) are set to defined values. Refuses a file as read_snapshot_header does,
+    !> and a range outside the file.
+    subroutine read_particles_rows(env, path, p, first_row, n_rows, stat, errmsg)
         type(mpi_env_t), intent(in) :: env
         character(len=*), intent(in) :: path
         type(particles_t), intent(inout) :: p
         integer(i8), intent(in) :: first_row
-        integer, intent(in) :: n
-        integer, intent(out) :: stat
-        character(len=:), allocatable, intent(out) :: errmsg
+        integer, intent(in) :: n_rows
+        integer, intent(out), optional :: stat
+        character(len=:), allocatable, intent(out), optional :: errmsg
         type(h5_file_t) :: file
         real(wp), allocatable :: v3(:, :), v1(:)
         integer(i8), allocatable :: ids(:)
         integer(i4), allocatable :: ints(:)
-        errmsg = ''
-        call h5_open_read(env, path, file, stat)
-        if (stat /= 0) then
-            errmsg = "cannot open '" // path // "'"
+        integer(i8) :: total
+        integer(i4) :: dim4
+        integer :: my_stat, n
+        character(len=:), allocatable :: message
+        character(len=64) :: numbers
+
+        call open_checked(env, path, file, my_stat, message)
+        if (agreed(env, my_stat) /= 0) then
+            if (my_stat == 0) call fatal_abort('read_particles_rows', "'" // path // &
+                "' was opened on some ranks only")
+            call finish(1, message, 'read_particles_rows', stat)
+            if (present(errmsg)) errmsg = message
             return
         end if
-        if (.not. h5_attribute_exists(file, 'write_complete')) then
-            stat = 1
-            errmsg = "'" // path // "' is incomplete (no write_complete marker): refused"
+        call check_datasets(file, total, my_stat, message)
+        if (my_stat == 0) call h5_read_attribute(file, 'dimension', dim4, my_stat, message)
+        if (my_stat == 0 .and. (first_row < 0 .or. n_rows < 0 .or. &
+                                first_row + n_rows > total)) then
+            my_stat = 1
+            write(numbers, '(i0,a,i0,a,i0)') first_row, ' + ', n_rows, ' > ', total
+            message = "rows outside '" // path // "' (" // trim(numbers) // ")"
+        end if
+        if (agreed(env, my_stat) /= 0) then
             call h5_close(file)
+            if (my_stat == 0) message = "reading '" // path // "' failed on another rank"
+            call finish(1, message, 'read_particles_rows', stat)
+            if (present(errmsg)) errmsg = message
             return
         end if
+
+        n = n_rows
+        p%dim = dim4
         call particles_reserve(p, n)
         allocate(v3(3, max(n, 1)), v1(max(n, 1)), ids(max(n, 1)), ints(max(n, 1)))
         call h5_read_rows(file, 'particles/position', v3, n, first_row)
@@ -245,25 +333,161 @@ contains
         p%kind(1:n) = ints(1:n)
         call h5_read_rows(file, 'particles/level', ints, n, first_row)
         p%level(1:n) = ints(1:n)
+        call h5_close(file, my_stat)
+        ! what a snapshot does not hold: defined values (the next step rebuilds them)
+        p%x_old(:, 1:n) = p%x(:, 1:n)
+        p%v_old(:, 1:n) = p%v(:, 1:n)
+        p%rho_old(1:n) = p%rho(1:n)
+        p%e_old(1:n) = p%e(1:n)
+        p%dvdt(:, 1:n) = 0.0_wp
+        p%drhodt(1:n) = 0.0_wp
+        p%dedt(1:n) = 0.0_wp
+        p%strain(:, 1:n) = 0.0_wp
+        p%wall_normal(:, 1:n) = 0.0_wp
+        p%wall_distance(1:n) = 0.0_wp
         p%n_owned = n
         p%n_ghost = 0
         p%n_total = n
-        call h5_close(file)
-        stat = 0
-    end subroutine read_snapshot_rows
+        my_stat = agreed(env, my_stat)
+        message = ''
+        if (my_stat /= 0) message = "closing '" // path // "' after reading failed"
+        call finish(my_stat, message, 'read_particles_rows', stat)
+        if (present(errmsg)) errmsg = message
+    end subroutine read_particles_rows
 
-    !> Current UTC date and time, ISO 8601.
-    function iso_date() result(text)
+    ! ---- helpers --------------------------------------------------------------------------
+
+    !> Open `path` for reading and check that it is a complete snapshot: the write_complete
+    !> marker is 1, format and format_version match. On failure the file is closed again and
+    !> the message names it.
+    subroutine open_checked(env, path, file, stat, message)
+        type(mpi_env_t), intent(in) :: env
+        character(len=*), intent(in) :: path
+        type(h5_file_t), intent(out) :: file
+        integer, intent(out) :: stat
+        character(len=:), allocatable, intent(out) :: message
+        integer(i4) :: complete, version
+        character(len=:), allocatable :: format
+        message = ''
+        call h5_open_read(env, path, file, stat, message)
+        if (stat /= 0) return
+        call h5_read_attribute(file, 'write_complete', complete, stat)
+        if (stat /= 0 .or. complete /= 1) then
+            stat = 1
+            message = "'" // path // "' is incomplete (no write_complete marker): refused"
+        else
+            call h5_read_attribute(file, 'format', format, stat)
+            if (stat == 0) call h5_read_attribute(file, 'format_version', version, stat)
+            if (stat /= 0) then
+                message = "'" // path // "' is not a sphremesh snapshot (no format " // &
+                    "attributes): refused"
+            else if (format /= snapshot_format_name .or. &
+                     version /= snapshot_format_version) then
+                stat = 1
+                message = "'" // path // "' has format '" // format // &
+                    "' version " // text_of(int(version, i8)) // ", not '" // &
+                    snapshot_format_name // "' version " // &
+                    text_of(int(snapshot_format_version, i8)) // ": refused"
+            end if
+        end if
+        if (stat /= 0) call h5_close(file)
+    end subroutine open_checked
+
+    !> Every particle dataset present, of the right width, all with the same rows.
+    subroutine check_datasets(file, rows, stat, message)
+        type(h5_file_t), intent(in) :: file
+        integer(i8), intent(out) :: rows
+        integer, intent(out) :: stat
+        character(len=:), allocatable, intent(out) :: message
+        integer :: k, width
+        integer(i8) :: these
+        stat = 0
+        message = ''
+        rows = h5_dataset_rows(file, 'particles/id')
+        do k = 1, n_datasets
+            these = h5_dataset_rows(file, 'particles/' // trim(dataset_names(k)), width)
+            if (these < 0 .or. these /= rows .or. width /= dataset_widths(k)) then
+                stat = 1
+                message = "'" // file%path // "': the dataset /particles/" // &
+                    trim(dataset_names(k)) // " is missing or has the wrong shape: refused"
+                return
+            end if
+        end do
+    end subroutine check_datasets
+
+    !> The same status on every rank: the largest.
+    integer function agreed(env, stat)
+        type(mpi_env_t), intent(in) :: env
+        integer, intent(in) :: stat
+        agreed = int(global_max(env, int(stat, i8)))
+    end function agreed
+
+    !> Hand the (agreed) status to the caller, or stop collectively when it did not ask. The
+    !> public routine sets errmsg itself: gfortran 12 loses the length of an optional
+    !> deferred-length character dummy passed on to another optional dummy.
+    subroutine finish(my_stat, message, where, stat)
+        integer, intent(in) :: my_stat
+        character(len=*), intent(in) :: message, where
+        integer, intent(out), optional :: stat
+        if (present(stat)) then
+            stat = my_stat
+        else if (my_stat /= 0) then
+            call fatal_collective(where, message)
+        end if
+    end subroutine finish
+
+    function text_of(value) result(text)
+        integer(i8), intent(in) :: value
         character(len=:), allocatable :: text
-        integer :: values(8)
-        character(len=32) :: buffer
-        integer :: minutes
-        call date_and_time(values=values)
-        ! values(4) is the local offset from UTC in minutes; write local time with its offset
-        minutes = values(4)
-        write(buffer, '(i4.4,a,i2.2,a,i2.2,a,i2.2,a,i2.2,a,i2.2,a,i2.2,a,i2.2)') values(1), '-', &
-            values(2), '-', values(3), 'T', values(5), ':', values(6), ':', values(7), &
-            merge('+', '-', minutes >= 0), abs(minutes) / 60, ':', mod(abs(minutes), 60)
+        character(len=24) :: buffer
+        write(buffer, '(i0)') value
         text = trim(buffer)
-    end function iso_date
+    end function text_of
+
+    !> Now in UTC, ISO 8601 (2026-05-09T07:29:33Z): the local time of date_and_time less
+    !> its UTC offset, through days since 1970-01-01 (H. Hinnant's civil-date algorithms).
+    function iso_date_utc() result(text)
+        character(len=:), allocatable :: text
+        integer :: values(8), offset_minutes, y, m, d
+        integer(i8) :: seconds, days, second_of_day
+        character(len=32) :: buffer
+        call date_and_time(values=values)
+        offset_minutes = values(4)
+        if (offset_minutes == -huge(0)) offset_minutes = 0   ! unknown: take local as UTC
+        seconds = days_from_civil(values(1), values(2), values(3)) * 86400_i8 + &
+            values(5) * 3600_i8 + values(6) * 60_i8 + values(7) - offset_minutes * 60_i8
+        second_of_day = modulo(seconds, 86400_i8)
+        days = (seconds - second_of_day) / 86400_i8
+        call civil_from_days(days, y, m, d)
+        write(buffer, '(i4.4,"-",i2.2,"-",i2.2,"T",i2.2,":",i2.2,":",i2.2,"Z")') y, m, d, &
+            int(second_of_day / 3600), int(mod(second_of_day, 3600_i8) / 60), &
+            int(mod(second_of_day, 60_i8))
+        text = trim(buffer)
+    end function iso_date_utc
+
+    pure integer(i8) function days_from_civil(year, month, day) result(days)
+        integer, intent(in) :: year, month, day
+        integer(i8) :: y, era, yoe, doy, doe
+        y = year - merge(1, 0, month <= 2)
+        era = merge(y, y - 399, y >= 0) / 400
+        yoe = y - era * 400
+        doy = (153 * (month + merge(-3, 9, month > 2)) + 2) / 5 + day - 1
+        doe = yoe * 365 + yoe / 4 - yoe / 100 + doy
+        days = era * 146097 + doe - 719468
+    end function days_from_civil
+
+    pure subroutine civil_from_days(days, year, month, day)
+        integer(i8), intent(in) :: days
+        integer, intent(out) :: year, month, day
+        integer(i8) :: z, era, doe, yoe, doy, mp
+        z = days + 719468
+        era = merge(z, z - 146096, z >= 0) / 146097
+        doe = z - era * 146097
+        yoe = (doe - doe / 1460 + doe / 36524 - doe / 146096) / 365
+        doy = doe - (365 * yoe + yoe / 4 - yoe / 100)
+        mp = (5 * doy + 2) / 153
+        day = int(doy - (153 * mp + 2) / 5 + 1)
+        month = int(merge(mp + 3, mp - 9, mp < 10))
+        year = int(yoe + era * 400) + merge(1, 0, month <= 2)
+    end subroutine civil_from_days
 end module sph_snapshot
