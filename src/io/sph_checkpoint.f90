@@ -29,7 +29,7 @@ contains
         integer(i8), intent(in) :: step
         character(len=:), allocatable :: path
         character(len=32) :: digits
-        write(digits, '(i6.6)') step
+        write(digits, '(i0.6)') step
         path = trim(output_dir) // '/' // trim(case_name) // '_checkpoint_' // &
             trim(adjustl(digits)) // '.h5'
     end function checkpoint_filename
