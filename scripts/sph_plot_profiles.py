@@ -1,11 +1,15 @@
 #!/usr/bin/env python3
 """Plot velocity profiles u_x(y) of Couette/Poiseuille snapshots against the analytic solution.
 
-  scripts/sph_plot_profiles.py output/poiseuille --output doc/poiseuille_profiles.png
+  scripts/sph_plot_profiles.py output/poiseuille --output poiseuille_profiles.png
   scripts/sph_plot_profiles.py output/poiseuille/poiseuille_000171.h5 ... --output p.png
+  scripts/sph_plot_profiles.py output/couette --average --steady --output c.png
 
-Markers: every fluid particle; lines: the analytic solution at the snapshot's time; the
-legend gives each time's relative L2 error (all fluid particles, all velocity components).
+Markers: every fluid particle (or, with --average, the mean of each particle row, with its
+spread as error bars); lines: the analytic solution at each snapshot's time, one colour per
+time; the legend gives each time's relative L2 error (all fluid particles, all velocity
+components, as scripts/sph_error_table.py). Works for 2D and 3D snapshots (u_x against y
+of all fluid particles). The t = 0 snapshot (fluid at rest) is left out unless --initial.
 """
 import argparse
 import os
@@ -17,69 +21,165 @@ try:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-except ImportError:  # pragma: no cover
-    sys.exit("sph_plot_profiles: matplotlib is missing; run scripts/install-deps and use .venv/bin/python")
+    from matplotlib.lines import Line2D
+    import f90nml  # noqa: F401  (sph_error_table needs it; fail here with a message)
+except ImportError as missing:  # pragma: no cover - a message, not a traceback
+    sys.exit(f"sph_plot_profiles: {missing.name} is missing; run scripts/install-deps "
+             "and use .venv/bin/python")
 
-import sph_analytic
-import sph_snapshot
-from sph_error_table import channel_parameters, snapshot_error
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import sph_analytic  # noqa: E402
+import sph_snapshot  # noqa: E402
+from sph_error_table import channel_parameters, snapshot_error  # noqa: E402
+
+si_scale = sph_snapshot.si_scale
 
 
 def exact_profile(par, case, y, t):
+    """Analytic u_x at heights y above the lower wall, time t (inf: steady)."""
     if case == "poiseuille":
         return sph_analytic.poiseuille(y, t, par["force"], par["width"], par["nu"])
-    return sph_analytic.couette(y, t, par["wall_speed"], par["width"], par["nu"])
+    if case == "couette":
+        return sph_analytic.couette(y, t, par["wall_speed"], par["width"], par["nu"])
+    raise ValueError(f"no analytic solution for case '{case}' (give --case poiseuille|couette)")
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("inputs", nargs="+", help="snapshot files or an output directory")
-    parser.add_argument("--output", "-o", required=True, help="PNG file to write")
-    parser.add_argument("--case", choices=["poiseuille", "couette"], help="default: the input's &run analytic")
-    parser.add_argument("--skip-zero", action="store_true", default=True, help=argparse.SUPPRESS)
-    args = parser.parse_args(argv)
+def percent(error):
+    """A relative error as a percentage, readable also when it is tiny."""
+    value = 100.0 * error
+    return f"{value:.2f} %" if value >= 0.01 or value == 0 else f"{value:.1e} %"
 
+
+def row_means(y, u, dx):
+    """Mean and standard deviation of u over each row of particles (rows dx apart)."""
+    row = np.rint(y / dx - 0.5).astype(np.int64)
+    rows = np.unique(row)
+    ym = np.array([y[row == r].mean() for r in rows])
+    um = np.array([u[row == r].mean() for r in rows])
+    us = np.array([u[row == r].std() for r in rows])
+    return ym, um, us
+
+
+def collect(inputs):
     files = []
-    for item in args.inputs:
+    for item in inputs:
         if os.path.isdir(item):
-            files.extend(sph_snapshot.list_snapshots(item))
+            found = sph_snapshot.list_snapshots(item)
+            if not found:
+                raise ValueError(f"{item}: no snapshot files (<case>_<step>.h5) in this directory")
+            files.extend(found)
         elif os.path.isfile(item):
             files.append(item)
         else:
-            print(f"sph_plot_profiles: no such file or directory: {item}", file=sys.stderr)
-            return 1
-    if not files:
-        print("sph_plot_profiles: no snapshots found", file=sys.stderr)
-        return 1
-    fig, ax = plt.subplots(figsize=(6.4, 4.8), dpi=150)
-    colours = plt.cm.viridis(np.linspace(0.0, 0.85, len(files)))
-    title = None
-    for colour, path in zip(colours, files):
-        try:
+            raise ValueError(f"{item}: no such file or directory")
+    return files
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog="Markers: SPH fluid particles; lines: analytic solution; legend: time and "
+               "relative L2 error. The output format follows the extension (png, pdf, svg).")
+    parser.add_argument("inputs", nargs="+", metavar="SNAPSHOT_OR_DIR",
+                        help="snapshot files (.h5) or an output directory (all its snapshots)")
+    parser.add_argument("--output", "-o", required=True, metavar="FILE.png", help="image to write")
+    parser.add_argument("--case", choices=["poiseuille", "couette"],
+                        help="analytic solution (default: the input's &run analytic)")
+    parser.add_argument("--average", action="store_true",
+                        help="plot the mean of each row of particles (error bars: spread) "
+                             "instead of every particle")
+    parser.add_argument("--steady", action="store_true",
+                        help="also draw the steady analytic profile (dashed)")
+    parser.add_argument("--initial", action="store_true",
+                        help="include the t = 0 snapshot (fluid at rest)")
+    parser.add_argument("--title", help="plot title (default: case, dimension and dx/L)")
+    parser.add_argument("--dpi", type=int, default=200, help="resolution of raster output (default 200)")
+    args = parser.parse_args(argv)
+
+    try:
+        files = collect(args.inputs)
+        series = []
+        for path in files:
             snap = sph_snapshot.load(path)
-            time, par, error, _ = snapshot_error(path, args.case)
-        except (OSError, KeyError, ValueError) as problem:
-            print(f"sph_plot_profiles: {path}: {problem}", file=sys.stderr)
-            return 1
-        case = args.case or par["case"]
-        if time == 0:
-            continue
+            par = channel_parameters(snap["input"])
+            case = args.case or par["case"]
+            if case not in ("poiseuille", "couette"):
+                raise ValueError(f"{path}: the input has analytic = '{case}'; "
+                                 "give --case poiseuille or --case couette")
+            time, _, error, nfluid = snapshot_error(path, case)
+            if nfluid == 0:
+                raise ValueError(f"{path}: no fluid particles")
+            if time == 0 and not args.initial:
+                continue
+            series.append((time, path, snap, par, case, error))
+    except (OSError, KeyError, ValueError) as problem:
+        print(f"sph_plot_profiles: {problem}", file=sys.stderr)
+        return 1
+    if not series:
+        print("sph_plot_profiles: no snapshot with t > 0 to plot (--initial includes t = 0)",
+              file=sys.stderr)
+        return 1
+    series.sort(key=lambda s: s[0])
+    par, case = series[-1][3], series[-1][4]
+    if len({(round(s[3]["width"], 15), s[4], round(s[3]["dx"], 15)) for s in series}) > 1:
+        print("sph_plot_profiles: warning: the snapshots come from different set-ups; "
+              "the title describes the last one", file=sys.stderr)
+
+    umax = max(np.abs(s[2]["velocity"][s[2]["kind"] == 0, 0]).max() for s in series)
+    steady_max = np.abs(exact_profile(par, case, np.linspace(0, par["width"], 201), np.inf)).max()
+    vscale, vunit = si_scale(max(umax, steady_max), "m/s")
+    lscale, lunit = si_scale(par["width"], "m")
+
+    plt.rcParams.update({"font.size": 10, "axes.linewidth": 0.8})
+    fig, ax = plt.subplots(figsize=(6.4, 4.6), dpi=args.dpi)
+    cmap = plt.get_cmap("tab10")
+    fine = np.linspace(0.0, par["width"], 400)
+    for i, (time, path, snap, spar, scase, error) in enumerate(series):
+        colour = cmap(i % 10)
         fluid = snap["kind"] == 0
-        y = snap["position"][fluid, 1] - par["y0"]
+        y = snap["position"][fluid, 1] - spar["y0"]
         u = snap["velocity"][fluid, 0]
-        ax.plot(y * 1e3, u * 1e6, "o", ms=2.0, color=colour, alpha=0.6)
-        fine = np.linspace(0.0, par["width"], 400)
-        ax.plot(fine * 1e3, exact_profile(par, case, fine, time) * 1e6, "-", color=colour, lw=1.2,
-                label=f"t = {time:g} s  (L2 error {100 * error:.2f} %)")
-        title = f"{case.capitalize()} flow, dx = L/{round(par['width'] / par['dx'])}"
-    ax.set_xlabel("y [mm]")
-    ax.set_ylabel("u_x [µm/s]")
-    ax.set_title((title or "") + "\nmarkers: SPH fluid particles, lines: analytic solution", fontsize=10)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="best")
+        if args.average:
+            ym, um, us = row_means(y, u, spar["dx"])
+            ax.errorbar(ym / lscale, um / vscale, yerr=us / vscale, fmt="o", ms=3.5, mfc="white",
+                        mec=colour, ecolor=colour, mew=1.0, elinewidth=0.8, capsize=1.5, zorder=3)
+        else:
+            ax.plot(y / lscale, u / vscale, "o", ms=3.0, mfc="none", mec=colour, mew=0.6,
+                    alpha=0.85, zorder=3)
+        ax.plot(fine / lscale, exact_profile(spar, scase, fine, time) / vscale, "-", color=colour,
+                lw=1.1, zorder=2,
+                label=f"t = {time:.4g} s   (L2 error {percent(error)})")
+    if args.steady:
+        ax.plot(fine / lscale, exact_profile(par, case, fine, np.inf) / vscale, "--", color="0.35",
+                lw=1.0, zorder=1, label="steady state")
+    handles, labels = ax.get_legend_handles_labels()
+    handles += [Line2D([], [], ls="", marker="o", ms=4, mfc="none" if not args.average else "white",
+                       mec="0.2", mew=0.8),
+                Line2D([], [], color="0.2", lw=1.3)]
+    labels += ["SPH, " + ("row means ± spread" if args.average else "fluid particles"),
+               "analytic solution"]
+    ax.legend(handles, labels, fontsize=8, frameon=True, framealpha=0.9,
+              loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2)
+    ax.set_xlim(0.0, par["width"] / lscale)
+    ax.set_xlabel(f"$y - y_0$ [{lunit}]")
+    ax.set_ylabel(f"$u_x$ [{vunit}]")
+    ax.axhline(0.0, color="0.6", lw=0.6, zorder=0)
+    n_per_width = par["width"] / par["dx"]
+    title = args.title or (f"{case.capitalize()} flow ({int(series[-1][2]['dimension'])}D), "
+                           f"dx/L = {par['dx'] / par['width']:.4g} (L/{n_per_width:.0f}), "
+                           f"L = {par['width'] / lscale:.4g} {lunit}")
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.25, lw=0.6)
+    ax.tick_params(direction="in", top=True, right=True)
     fig.tight_layout()
-    fig.savefig(args.output)
-    print(f"wrote {args.output}")
+    try:
+        fig.savefig(args.output, dpi=args.dpi, bbox_inches="tight")
+    except (OSError, ValueError) as problem:
+        print(f"sph_plot_profiles: cannot write {args.output}: {problem}", file=sys.stderr)
+        return 1
+    finally:
+        plt.close(fig)
+    print(f"wrote {args.output} ({len(series)} time(s), {case})")
     return 0
 
 

@@ -1,13 +1,14 @@
 #!/usr/bin/env python3
 """Read sphremesh snapshot files (schema: doc/output.md) into numpy arrays.
 
-As a module (post-processing scripts):
+As a module (post-processing scripts, with scripts/ on sys.path):
 
-    from sph_snapshot import load
+    from sph_snapshot import load, list_snapshots
     snap = load("output/poiseuille/poiseuille_007575.h5")
     x = snap["position"]            # (N, 3) float64, m
     fluid = snap["kind"] == 0
-    t = snap["attrs"]["time"]       # s
+    t = snap["attrs"]["time"]       # s (also snap["time"])
+    files = list_snapshots("output/poiseuille")      # sorted by step
 
 As a command, a one-screen summary of each file:
 
@@ -24,7 +25,7 @@ import numpy as np
 
 try:
     import h5py
-except ImportError:  # pragma: no cover
+except ImportError:  # pragma: no cover - a message, not a traceback
     sys.exit("sph_snapshot: h5py is missing; run scripts/install-deps and use .venv/bin/python")
 
 FORMAT = "sphremesh-snapshot"
@@ -32,94 +33,207 @@ FORMAT_VERSION = 1
 FIELDS = ("position", "velocity", "density", "pressure", "mass", "smoothing_length", "energy",
           "id", "kind", "level", "rank")
 KINDS = {0: "fluid", 1: "wall", 2: "virtual"}
+KIND_CODES = {name: code for code, name in KINDS.items()}
+# Root attributes also copied to the top level of load()'s dict, for convenience.
+HEADER = ("time", "step", "dimension", "input", "code_version", "nranks", "date")
+SNAPSHOT_NAME = re.compile(r"^(?P<case>.+)_(?P<step>\d{6,})\.h5$")
+
+
+class SnapshotError(ValueError):
+    """A file that is not a readable, complete sphremesh snapshot (message names the file)."""
 
 
 def _plain(value):
     """An attribute as a Python str, int or float (h5py gives numpy scalars or bytes)."""
     if isinstance(value, bytes):
         return value.decode("utf-8", "replace")
+    if isinstance(value, np.ndarray) and value.shape == (1,):
+        value = value[0]
+    if isinstance(value, np.bytes_):
+        return bytes(value).decode("utf-8", "replace")
     if isinstance(value, np.generic):
         return value.item()
     return value
 
 
-def load(path):
+def load(path, check_format=True):
     """All datasets of /particles (numpy arrays, N rows) and the root attributes.
 
     Returns a dict: one entry per dataset (``position``, ``velocity``: N x 3; the others: N;
-    checkpoints have a few more) and ``attrs``, a dict of the root attributes as str, int or
-    float. Raises ValueError for a file without the write_complete marker (a write that did
-    not finish) or of another format.
+    checkpoints have a few more), ``attrs`` (every root attribute as str, int or float, strings
+    decoded) and, for convenience, the header attributes ``time``, ``step``, ``dimension``,
+    ``input``, ... also at the top level. Raises SnapshotError (a ValueError) for a missing
+    or unreadable file, a file without the write_complete marker (a write that did not
+    finish) or of another format.
     """
-    with h5py.File(path, "r") as f:
-        attrs = {key: _plain(value) for key, value in f.attrs.items()}
-        if attrs.get("write_complete") != 1:
-            raise ValueError(f"{path}: incomplete snapshot (no write_complete marker)")
-        if attrs.get("format") != FORMAT or attrs.get("format_version") != FORMAT_VERSION:
-            raise ValueError(f"{path}: not a {FORMAT} file of format version {FORMAT_VERSION} "
-                             f"(format {attrs.get('format')!r}, "
-                             f"version {attrs.get('format_version')!r})")
-        data = {name: f["particles"][name][()] for name in f["particles"]}
+    if not os.path.isfile(path):
+        raise SnapshotError(f"{path}: no such file")
+    try:
+        with h5py.File(path, "r") as f:
+            attrs = {key: _plain(value) for key, value in f.attrs.items()}
+            if attrs.get("write_complete") != 1:
+                raise SnapshotError(f"{path}: incomplete snapshot (no write_complete marker)")
+            if check_format and (attrs.get("format") != FORMAT
+                                 or attrs.get("format_version") != FORMAT_VERSION):
+                raise SnapshotError(f"{path}: not a {FORMAT} file of format version "
+                                    f"{FORMAT_VERSION} (format {attrs.get('format')!r}, "
+                                    f"version {attrs.get('format_version')!r})")
+            if "particles" not in f or not isinstance(f["particles"], h5py.Group):
+                raise SnapshotError(f"{path}: no /particles group")
+            data = {name: f["particles"][name][()] for name in f["particles"]
+                    if isinstance(f["particles"][name], h5py.Dataset)}
+    except OSError as problem:
+        raise SnapshotError(f"{path}: not a readable HDF5 file ({problem})") from None
+    missing = [name for name in FIELDS if name not in data]
+    if missing:
+        raise SnapshotError(f"{path}: /particles lacks {', '.join(missing)}")
+    for key in ("time", "step", "dimension"):
+        if key not in attrs:
+            raise SnapshotError(f"{path}: no root attribute '{key}'")
     data["attrs"] = attrs
+    for key in HEADER:
+        if key in attrs:
+            data[key] = attrs[key]
+    data["path"] = path
     return data
 
 
+def namelist(snap):
+    """The run's resolved input (f90nml Namelist) from a load() result or the input text."""
+    import f90nml  # imported here: the summary works without it
+    text = snap if isinstance(snap, str) else snap["attrs"].get("input", "")
+    return f90nml.reads(text)
+
+
+def geometry(snap):
+    """dimension, dx, box_lo (3), box_hi (3) of a loaded snapshot, from its input text; the
+    box and dx are estimated from the particles if the input cannot be read."""
+    dim = int(snap["attrs"]["dimension"])
+    try:
+        domain = namelist(snap)["domain"]
+        dx = float(domain["dx"])
+        lo = np.zeros(3)
+        hi = np.zeros(3)
+        lo[:dim] = np.asarray(domain["box_lo"], dtype=float)[:dim]
+        hi[:dim] = np.asarray(domain["box_hi"], dtype=float)[:dim]
+    except Exception:  # no or odd input text: estimate from the particles
+        pos = snap["position"]
+        h = snap["smoothing_length"]
+        dx = float(np.median(h) / 1.3) if len(h) else 1.0
+        fluid = snap["kind"] == 0
+        pts = pos[fluid] if fluid.any() else pos
+        lo = pts.min(axis=0) - dx / 2 if len(pts) else np.zeros(3)
+        hi = pts.max(axis=0) + dx / 2 if len(pts) else np.ones(3)
+    return {"dimension": dim, "dx": dx, "box_lo": lo, "box_hi": hi}
+
+
+_PREFIXES = ((1e-9, "n"), (1e-6, "\u00b5"), (1e-3, "m"), (1.0, ""), (1e3, "k"))
+
+
+def si_scale(largest, unit):
+    """(factor, label) such that largest / factor lies in [1, 1000): si_scale(2.5e-5, "m/s")
+    gives (1e-6, "\u00b5m/s"). For axis and colour-bar labels of plots."""
+    factor, prefix = 1.0, ""
+    largest = abs(float(largest))
+    if largest > 0 and np.isfinite(largest):
+        for f, p in _PREFIXES:
+            if largest >= f * 0.999:
+                factor, prefix = f, p
+    return factor, prefix + unit
+
+
 def list_snapshots(directory, case=None):
-    """Snapshot files (not checkpoints) in a directory, sorted by step."""
-    pattern = re.compile(r"^(?P<case>.+)_(?P<step>\d{6,})\.h5$")
+    """Snapshot files (not checkpoints, not *.tmp) in a directory, sorted by step.
+
+    ``case`` keeps only <case>_<step>.h5; without it, all cases are listed.
+    Raises SnapshotError if the directory does not exist."""
+    if not os.path.isdir(directory):
+        raise SnapshotError(f"{directory}: no such directory")
     found = []
     for name in os.listdir(directory):
-        match = pattern.match(name)
+        match = SNAPSHOT_NAME.match(name)
         if not match or "_checkpoint_" in name:
             continue
         if case and match.group("case") != case:
             continue
-        found.append((int(match.group("step")), os.path.join(directory, name)))
-    return [path for _, path in sorted(found)]
+        found.append((int(match.group("step")), name, os.path.join(directory, name)))
+    return [path for _, _, path in sorted(found)]
+
+
+def _vector(values, dim):
+    return "(" + ", ".join(f"{v:.6g}" for v in values[:dim]) + ")"
+
+
+def _range(values):
+    if values.dtype.kind in "iu":
+        return f"{values.min():>14d} {values.max():>14d}"
+    return f"{values.min():>14.6e} {values.max():>14.6e}"
 
 
 def summary(path):
     """A few lines describing a snapshot: header, particle counts, range of every field."""
-    snap = load(path)
+    snap = load(path, check_format=False)
     a = snap["attrs"]
     n = len(snap["id"])
     lines = [f"{path}",
              f"  time {a['time']:.6g} s, step {a['step']}, dimension {a['dimension']}, "
-             f"{a['nranks']} rank(s), {n} particles",
+             f"{a.get('nranks', '?')} rank(s), {n} particles",
              f"  written {a.get('date', '?')} by {a.get('code_version', '?')}; "
+             f"format {a.get('format', '?')} v{a.get('format_version', '?')}; "
              f"input {len(a.get('input', ''))} characters"]
+    try:
+        run = namelist(snap)["run"]
+        geo = geometry(snap)
+        lines.append(f"  case {run.get('case_name', '?')}, analytic {run.get('analytic', 'none')}, "
+                     f"dx {geo['dx']:.4g} m, box {_vector(geo['box_lo'], geo['dimension'])} .. "
+                     f"{_vector(geo['box_hi'], geo['dimension'])} m")
+    except Exception:  # the summary does not need the input
+        pass
     kinds, counts = np.unique(snap["kind"], return_counts=True)
     lines.append("  kinds: " + (", ".join(f"{KINDS.get(int(k), k)} {c}"
                                           for k, c in zip(kinds, counts)) or "none"))
     ranks, counts = np.unique(snap["rank"], return_counts=True)
-    lines.append("  rows per rank: " + (", ".join(f"{int(r)}: {c}"
-                                                  for r, c in zip(ranks, counts)) or "none"))
+    shown = ", ".join(f"{int(r)}: {c}" for r, c in list(zip(ranks, counts))[:16])
+    if len(ranks) > 16:
+        shown += f", ... ({len(ranks)} ranks)"
+    lines.append("  rows per rank: " + (shown or "none"))
+    levels, counts = np.unique(snap["level"], return_counts=True)
+    lines.append("  rows per level: " + (", ".join(f"{int(r)}: {c}"
+                                                   for r, c in zip(levels, counts)) or "none"))
+    lines.append(f"  {'field':<20} {'min':>14} {'max':>14}")
     for name in FIELDS:
         values = snap[name]
         if n == 0:
             lines.append(f"  {name:<20} (empty)")
         elif values.ndim == 2:
             for axis, label in enumerate("xyz"):
-                column = values[:, axis]
-                lines.append(f"  {name + '_' + label:<20} {column.min(): .6e} .. "
-                             f"{column.max(): .6e}")
+                lines.append(f"  {name + '_' + label:<20} {_range(values[:, axis])}")
         else:
-            lines.append(f"  {name:<20} {values.min(): .6e} .. {values.max(): .6e}")
+            lines.append(f"  {name:<20} {_range(values)}")
     return "\n".join(lines)
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(
-        description="Print a summary of sphremesh snapshot files (schema: doc/output.md). "
+        description="Print a summary of sphremesh snapshot files (time, step, particles per "
+                    "kind, rank and level, range of every field; schema: doc/output.md). "
                     "As a module, load(path) returns the datasets and attributes as a dict.")
-    parser.add_argument("snapshots", nargs="+", metavar="FILE.h5", help="snapshot files")
+    parser.add_argument("snapshots", nargs="+", metavar="FILE.h5",
+                        help="snapshot files, or an output directory (all its snapshots)")
     args = parser.parse_args(argv)
     status = 0
-    for path in args.snapshots:
+    first = True
+    for item in args.snapshots:
         try:
-            print(summary(path))
+            paths = list_snapshots(item) if os.path.isdir(item) else [item]
+            if not paths:
+                raise SnapshotError(f"{item}: no snapshot files (<case>_<step>.h5)")
+            for path in paths:
+                text = summary(path)
+                print(text if first else "\n" + text)
+                first = False
         except (OSError, KeyError, ValueError) as problem:
-            print(f"sph_snapshot: {path}: {problem}", file=sys.stderr)
+            print(f"sph_snapshot: {problem}", file=sys.stderr)
             status = 1
     return status
 

@@ -1,0 +1,420 @@
+"""Tests of the Python post-processing tools (scripts/sph_*.py) on synthetic snapshots.
+
+Run from the repository root (no pytest needed):
+
+    .venv/bin/python -m unittest discover -s tests/python -v
+
+Each test class writes a small snapshot series with h5py into a temporary directory,
+following the schema of doc/output.md exactly (root attributes, the resolved input text,
+/particles datasets), with fluid velocities set to the analytic solution, plus a matching
+XDMF file as the code writes it. The commands are run as subprocesses (exit status, messages,
+no traceback) and their functions are called directly.
+"""
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import unittest
+
+import numpy as np
+import h5py
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+SCRIPTS = os.path.join(ROOT, "scripts")
+sys.path.insert(0, SCRIPTS)
+
+import sph_analytic  # noqa: E402
+import sph_check_xdmf  # noqa: E402
+import sph_error_table  # noqa: E402
+import sph_snapshot  # noqa: E402
+
+TIMES = (0.0, 0.0225, 0.225, 1.0)
+STEPS = (0, 171, 1705, 7575)
+FIELDS_1D = ("density", "pressure", "mass", "smoothing_length", "energy", "id", "kind",
+             "level", "rank")
+
+
+def input_text(case, dim, box_hi, dx, nu, force, wall_speed):
+    """A resolved namelist like the one the code stores in every file."""
+    faces = np.zeros((6, 3))
+    faces[3, 0] = wall_speed                      # yhi face moves along x (Couette)
+    wall = ", ".join(f"{v:.17g}" for v in faces.reshape(-1))   # Fortran order (1:3, face)
+    hi = ", ".join(f"{v:.17g}" for v in box_hi)
+    return f"""&run
+    case_name = 'synthetic'
+    t_end = 1.0
+    analytic = '{case}'
+/
+&output
+    output_dir = 'output/synthetic'
+/
+&domain
+    dimension = {dim}
+    box_lo = 0.0, 0.0, 0.0
+    box_hi = {hi}
+    dx = {dx:.17g}
+    boundary = 'periodic', 'periodic', 'wall', 'wall', 'periodic', 'periodic'
+    wall_velocity = {wall}
+/
+&fluid
+    rho0 = 1000.0
+    nu = {nu:.17g}
+    body_force = {force:.17g}, 0.0, 0.0
+/
+"""
+
+
+def lattice(dim, box_hi, dx, wall_rows=3):
+    """Fluid particles on the lattice (first at dx/2) and wall_rows rows of wall particles
+    below y = 0 and above y = L (periodic in x and z)."""
+    nx = int(round(box_hi[0] / dx))
+    ny = int(round(box_hi[1] / dx))
+    nz = int(round(box_hi[2] / dx)) if dim == 3 else 1
+    xs = (np.arange(nx) + 0.5) * dx
+    zs = (np.arange(nz) + 0.5) * dx if dim == 3 else np.zeros(1)
+    rows = np.arange(-wall_rows, ny + wall_rows)
+    ys = (rows + 0.5) * dx
+    X, Y, Z = np.meshgrid(xs, ys, zs, indexing="ij")
+    R = np.broadcast_to(rows[None, :, None], X.shape)
+    pos = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
+    r = R.ravel()
+    kind = np.where((r < 0) | (r >= ny), 1, 0).astype(np.int32)
+    return pos, kind
+
+
+def write_snapshot(path, *, time, step, dim, text, pos, kind, vel, nranks=2,
+                   complete=True):
+    n = len(pos)
+    rank = (np.arange(n) * nranks // max(n, 1)).astype(np.int32)
+    with h5py.File(path, "w") as f:
+        f.attrs["time"] = np.float64(time)
+        f.attrs["step"] = np.int64(step)
+        f.attrs["dimension"] = np.int32(dim)
+        # one string as fixed-length bytes, as some HDF5 writers give: load() must decode it
+        f.attrs["code_version"] = np.bytes_(b"sphremesh 0.1.0 (synthetic test)")
+        f.attrs["input"] = text
+        f.attrs["nranks"] = np.int32(nranks)
+        f.attrs["date"] = "2026-05-09T07:29:33Z"
+        f.attrs["format"] = "sphremesh-snapshot"
+        f.attrs["format_version"] = np.int32(1)
+        g = f.create_group("particles")
+        g["position"] = pos.astype(np.float64)
+        g["velocity"] = vel.astype(np.float64)
+        g["density"] = 1000.0 + 0.01 * np.sin(pos[:, 1] * 1e4)
+        g["pressure"] = 1e-3 * np.cos(pos[:, 1] * 1e4)
+        g["mass"] = np.full(n, 1000.0 * 1e-8)
+        g["smoothing_length"] = np.full(n, 1.3e-4)
+        g["energy"] = np.linspace(0.0, 1e-9, n)
+        g["id"] = np.arange(1, n + 1, dtype=np.int64)
+        g["kind"] = kind.astype(np.int32)
+        g["level"] = np.zeros(n, dtype=np.int32)
+        g["rank"] = rank
+        if complete:
+            f.attrs["write_complete"] = np.int32(1)      # written last
+
+
+def write_xdmf(path, entries):
+    """entries: (file name, time, step, N) per snapshot; the code's layout (Xdmf 3)."""
+    types = {"velocity": ("Vector", "Float", 8), "density": ("Scalar", "Float", 8),
+             "pressure": ("Scalar", "Float", 8), "mass": ("Scalar", "Float", 8),
+             "smoothing_length": ("Scalar", "Float", 8), "energy": ("Scalar", "Float", 8),
+             "id": ("Scalar", "Int", 8), "kind": ("Scalar", "Int", 4),
+             "level": ("Scalar", "Int", 4), "rank": ("Scalar", "Int", 4)}
+    lines = ['<?xml version="1.0" ?>', '<Xdmf Version="3.0">', ' <Domain>',
+             '  <Grid Name="particles" GridType="Collection" CollectionType="Temporal">']
+    for name, time, step, n in entries:
+        lines += [f'   <Grid Name="step_{step}" GridType="Uniform">',
+                  f'    <Time Value="{time:24.16E}"/>',
+                  f'    <Topology TopologyType="Polyvertex" NumberOfElements="{n}"/>',
+                  '    <Geometry GeometryType="XYZ">',
+                  f'     <DataItem Dimensions="{n} 3" NumberType="Float" Precision="8" '
+                  f'Format="HDF">{name}:/particles/position</DataItem>',
+                  '    </Geometry>']
+        for field, (atype, ntype, prec) in types.items():
+            dims = f"{n} 3" if atype == "Vector" else f"{n}"
+            lines += [f'    <Attribute Name="{field}" AttributeType="{atype}" Center="Node">',
+                      f'     <DataItem Dimensions="{dims}" NumberType="{ntype}" Precision="{prec}" '
+                      f'Format="HDF">{name}:/particles/{field}</DataItem>',
+                      '    </Attribute>']
+        lines.append('   </Grid>')
+    lines += ['  </Grid>', ' </Domain>', '</Xdmf>']
+    with open(path, "w") as f:
+        f.write("\n".join(lines) + "\n")
+
+
+def make_series(folder, case="poiseuille", dim=2, name="synthetic"):
+    """A snapshot series with exact analytic velocities and its XDMF file; returns paths."""
+    width, dx, nu, force, wall_speed = 1.0e-3, 1.0e-4, 1.0e-6, 2.0e-4, 1.0e-5
+    box_hi = (0.5e-3, width, 0.4e-3 if dim == 3 else 0.0)
+    text = input_text(case, dim, box_hi, dx, nu, force,
+                      wall_speed if case == "couette" else 0.0)
+    pos, kind = lattice(dim, box_hi, dx)
+    fluid = kind == 0
+    paths, entries = [], []
+    for time, step in zip(TIMES, STEPS):
+        vel = np.zeros_like(pos)
+        if case == "poiseuille":
+            vel[fluid, 0] = sph_analytic.poiseuille(pos[fluid, 1], time, force, width, nu)
+        else:
+            vel[fluid, 0] = sph_analytic.couette(pos[fluid, 1], time, wall_speed, width, nu)
+            vel[kind == 1, 0] = np.where(pos[kind == 1, 1] > width, wall_speed, 0.0)
+        file_name = f"{name}_{step:06d}.h5"
+        path = os.path.join(folder, file_name)
+        write_snapshot(path, time=time, step=step, dim=dim, text=text, pos=pos, kind=kind,
+                       vel=vel)
+        paths.append(path)
+        entries.append((file_name, time, step, len(pos)))
+    xdmf = os.path.join(folder, f"{name}.xdmf")
+    write_xdmf(xdmf, entries)
+    return paths, xdmf
+
+
+def run(script, *args):
+    env = dict(os.environ, MPLBACKEND="Agg")
+    return subprocess.run([sys.executable, os.path.join(SCRIPTS, script), *map(str, args)],
+                          capture_output=True, text=True, env=env, timeout=300)
+
+
+def is_png(path, min_bytes=5000):
+    if not os.path.isfile(path) or os.path.getsize(path) < min_bytes:
+        return False
+    with open(path, "rb") as f:
+        return f.read(8) == b"\x89PNG\r\n\x1a\n"
+
+
+class PostProcessingTestCase(unittest.TestCase):
+    case, dim = "poiseuille", 2
+
+    @classmethod
+    def setUpClass(cls):
+        cls.folder = tempfile.mkdtemp(prefix=f"sph_pp_{cls.case}{cls.dim}d_")
+        cls.paths, cls.xdmf = make_series(cls.folder, cls.case, cls.dim)
+
+    @classmethod
+    def tearDownClass(cls):
+        shutil.rmtree(cls.folder, ignore_errors=True)
+
+    def assertCleanFailure(self, result, *fragments):
+        """Exit 1, a message naming the problem, no traceback."""
+        self.assertEqual(result.returncode, 1, result.stdout + result.stderr)
+        self.assertNotIn("Traceback", result.stderr)
+        for fragment in fragments:
+            self.assertIn(fragment, result.stderr)
+
+
+class TestSnapshot(PostProcessingTestCase):
+
+    def test_load_round_trip(self):
+        snap = sph_snapshot.load(self.paths[2])
+        with h5py.File(self.paths[2], "r") as f:
+            for name in ("position", "velocity") + FIELDS_1D:
+                np.testing.assert_array_equal(snap[name], f["particles"][name][()], err_msg=name)
+                self.assertEqual(snap[name].dtype, f["particles"][name].dtype)
+        self.assertEqual(snap["position"].shape, (len(snap["id"]), 3))
+        attrs = snap["attrs"]
+        self.assertEqual(attrs["time"], TIMES[2])
+        self.assertEqual(attrs["step"], STEPS[2])
+        self.assertEqual(attrs["dimension"], self.dim)
+        self.assertEqual(attrs["write_complete"], 1)
+        for key in ("code_version", "input", "date", "format"):
+            self.assertIsInstance(attrs[key], str, key)
+        self.assertEqual(attrs["code_version"], "sphremesh 0.1.0 (synthetic test)")
+        self.assertEqual(snap["time"], TIMES[2])
+        self.assertIn(f"analytic = '{self.case}'", snap["input"])
+        geo = sph_snapshot.geometry(snap)
+        self.assertEqual(geo["dimension"], self.dim)
+        self.assertAlmostEqual(geo["dx"], 1e-4)
+
+    def test_list_snapshots_sorted_by_step(self):
+        # decoys: a checkpoint, an unfinished .tmp, another case, a 7-digit step
+        extra = tempfile.mkdtemp(dir=self.folder)
+        for name in ("a_000010.h5", "a_000002.h5", "a_1000000.h5", "a_checkpoint_000010.h5",
+                     "a_000011.h5.tmp", "b_000005.h5", "a.xdmf"):
+            open(os.path.join(extra, name), "w").close()
+        names = [os.path.basename(p) for p in sph_snapshot.list_snapshots(extra, case="a")]
+        self.assertEqual(names, ["a_000002.h5", "a_000010.h5", "a_1000000.h5"])
+        self.assertEqual(len(sph_snapshot.list_snapshots(extra)), 4)
+        found = sph_snapshot.list_snapshots(self.folder)
+        self.assertEqual(found, self.paths)
+        with self.assertRaises(ValueError):
+            sph_snapshot.list_snapshots(os.path.join(self.folder, "missing"))
+
+    def test_incomplete_file_refused(self):
+        path = os.path.join(self.folder, "incomplete_000001.h5")
+        pos, kind = lattice(2, (1e-3, 1e-3, 0), 2.5e-4)
+        write_snapshot(path, time=0.1, step=1, dim=2, text="", pos=pos, kind=kind,
+                       vel=np.zeros_like(pos), complete=False)
+        try:
+            with self.assertRaisesRegex(ValueError, "write_complete"):
+                sph_snapshot.load(path)
+            self.assertCleanFailure(run("sph_snapshot.py", path), "incomplete")
+        finally:
+            os.remove(path)
+
+    def test_summary_command(self):
+        result = run("sph_snapshot.py", self.paths[-1])
+        self.assertEqual(result.returncode, 0, result.stderr)
+        n_fluid = sum(sph_snapshot.load(self.paths[-1])["kind"] == 0)
+        self.assertIn(f"fluid {n_fluid}", result.stdout)
+        self.assertIn("time 1 s, step 7575", result.stdout)
+        for field in ("velocity_x", "density", "rank"):
+            self.assertIn(field, result.stdout)
+        self.assertCleanFailure(run("sph_snapshot.py", os.path.join(self.folder, "nope.h5")),
+                                "nope.h5")
+        self.assertCleanFailure(run("sph_snapshot.py", self.xdmf), "not a readable HDF5 file")
+
+
+class TestErrorTable(PostProcessingTestCase):
+
+    def test_error_near_zero(self):
+        for path, time in zip(self.paths[1:], TIMES[1:]):
+            t, par, error, n = sph_error_table.snapshot_error(path)
+            self.assertEqual(t, time)
+            self.assertEqual(par["case"], self.case)
+            self.assertGreater(n, 0)
+            self.assertLess(error, 1e-12, path)
+
+    def test_channel_parameters(self):
+        par = sph_error_table.channel_parameters(sph_snapshot.load(self.paths[0])["input"])
+        self.assertAlmostEqual(par["width"], 1e-3)
+        self.assertAlmostEqual(par["nu"], 1e-6)
+        self.assertAlmostEqual(par["dx"], 1e-4)
+        if self.case == "couette":
+            self.assertAlmostEqual(par["wall_speed"], 1e-5)
+        else:
+            self.assertAlmostEqual(par["force"], 2e-4)
+
+
+class TestPlots(PostProcessingTestCase):
+
+    def test_profile_plot_from_directory(self):
+        out = os.path.join(self.folder, "profiles.png")
+        result = run("sph_plot_profiles.py", self.folder, "--output", out)
+        self.assertEqual(result.returncode, 0, result.stderr)
+        self.assertTrue(is_png(out), out)
+        self.assertIn("3 time(s)", result.stdout)
+
+    def test_profile_plot_averaged_from_files(self):
+        out = os.path.join(self.folder, "profiles_avg.png")
+        result = run("sph_plot_profiles.py", *self.paths[1:3], "--average", "--steady", "-o", out)
+        self.assertEqual(result.returncode, 0, result.stderr)
+        self.assertTrue(is_png(out), out)
+        self.assertIn("2 time(s)", result.stdout)
+
+    def test_profile_plot_bad_input(self):
+        out = os.path.join(self.folder, "never.png")
+        self.assertCleanFailure(run("sph_plot_profiles.py", os.path.join(self.folder, "nope"),
+                                    "-o", out), "nope")
+        self.assertCleanFailure(run("sph_plot_profiles.py", self.paths[0], "-o", out),
+                                "t > 0")
+        self.assertFalse(os.path.exists(out))
+
+    def test_field_plots(self):
+        for field, kinds in (("velocity_x", "fluid,wall"), ("pressure", "fluid"),
+                             ("velocity_magnitude", "all"), ("rank", "fluid,wall"),
+                             ("kind", "fluid,wall"), ("density", "wall")):
+            out = os.path.join(self.folder, f"field_{field}.png")
+            result = run("sph_plot_field.py", self.paths[-1], "--field", field, "--kinds", kinds,
+                         "--output", out)
+            self.assertEqual(result.returncode, 0, field + ": " + result.stderr)
+            self.assertTrue(is_png(out, 3000), out)
+
+    def test_field_plot_bad_input(self):
+        out = os.path.join(self.folder, "never.png")
+        self.assertCleanFailure(run("sph_plot_field.py", self.paths[-1], "--field", "bogus",
+                                    "-o", out), "unknown field 'bogus'")
+        self.assertCleanFailure(run("sph_plot_field.py", self.paths[-1], "--kinds", "flud",
+                                    "-o", out), "unknown kind 'flud'")
+        self.assertCleanFailure(run("sph_plot_field.py", self.paths[-1], "--kinds", "virtual",
+                                    "-o", out), "no particles")
+        self.assertCleanFailure(run("sph_plot_field.py", os.path.join(self.folder, "x.h5"),
+                                    "-o", out), "x.h5")
+        self.assertFalse(os.path.exists(out))
+
+    def test_help(self):
+        for script in ("sph_snapshot.py", "sph_plot_profiles.py", "sph_plot_field.py",
+                       "sph_check_xdmf.py"):
+            result = run(script, "--help")
+            self.assertEqual(result.returncode, 0, script)
+            self.assertIn("usage:", result.stdout)
+
+
+class TestXdmf(PostProcessingTestCase):
+
+    def broken_copy(self, old, new, count=1):
+        with open(self.xdmf) as f:
+            text = f.read()
+        self.assertIn(old, text)
+        path = os.path.join(self.folder, "broken.xdmf")
+        with open(path, "w") as f:
+            f.write(text.replace(old, new, count))
+        self.addCleanup(os.remove, path)
+        return path
+
+    def test_good_file_passes(self):
+        summary, problems = sph_check_xdmf.check(self.xdmf)
+        self.assertEqual(problems, [])
+        self.assertEqual(summary["grids"], len(TIMES))
+        self.assertEqual(summary["items"], 11 * len(TIMES))
+        self.assertEqual(summary["times"], list(TIMES))
+        result = run("sph_check_xdmf.py", self.xdmf)
+        self.assertEqual(result.returncode, 0, result.stderr)
+        self.assertIn("OK: 4 time steps", result.stdout)
+
+    def test_missing_dataset(self):
+        path = self.broken_copy("/particles/density<", "/particles/no_such_field<")
+        result = run("sph_check_xdmf.py", path)
+        self.assertCleanFailure(result, "synthetic_000000.h5:/particles/no_such_field: "
+                                        "no such dataset")
+
+    def test_wrong_dimension(self):
+        n = len(sph_snapshot.load(self.paths[0])["id"])
+        path = self.broken_copy(f'Dimensions="{n}" NumberType="Float" Precision="8" '
+                                'Format="HDF">synthetic_000000.h5:/particles/pressure',
+                                f'Dimensions="{n + 1}" NumberType="Float" Precision="8" '
+                                'Format="HDF">synthetic_000000.h5:/particles/pressure')
+        result = run("sph_check_xdmf.py", path)
+        self.assertCleanFailure(result, "synthetic_000000.h5:/particles/pressure",
+                                f"Dimensions {n + 1} in the XDMF but shape {n} in the file")
+
+    def test_missing_file(self):
+        path = self.broken_copy("synthetic_001705.h5:/particles/position",
+                                "gone_001705.h5:/particles/position")
+        self.assertCleanFailure(run("sph_check_xdmf.py", path), "gone_001705.h5", "does not exist")
+
+    def test_wrong_time(self):
+        path = self.broken_copy(f'<Time Value="{TIMES[2]:24.16E}"/>', '<Time Value="0.3"/>')
+        self.assertCleanFailure(run("sph_check_xdmf.py", path), "differs from the file's time")
+
+    def test_times_not_increasing(self):
+        path = self.broken_copy(f'<Time Value="{TIMES[3]:24.16E}"/>', '<Time Value="0.1"/>')
+        self.assertCleanFailure(run("sph_check_xdmf.py", path), "times do not increase")
+
+    def test_number_of_elements(self):
+        n = len(sph_snapshot.load(self.paths[0])["id"])
+        path = self.broken_copy(f'NumberOfElements="{n}"', f'NumberOfElements="{n - 1}"')
+        self.assertCleanFailure(run("sph_check_xdmf.py", path), "NumberOfElements")
+
+    def test_not_xml(self):
+        self.assertCleanFailure(run("sph_check_xdmf.py", self.paths[0]), "not readable XML")
+        self.assertCleanFailure(run("sph_check_xdmf.py", os.path.join(self.folder, "no.xdmf")),
+                                "no such file")
+
+
+class Test3DCouette(TestSnapshot, TestErrorTable, TestPlots, TestXdmf):
+    """The same checks on a 3D Couette series (slice plots, u_x(y) over the whole depth)."""
+    case, dim = "couette", 3
+
+    def test_field_slice(self):
+        out = os.path.join(self.folder, "slice.png")
+        result = run("sph_plot_field.py", self.paths[-1], "--field", "velocity_x", "--z",
+                     "0.25e-3", "-o", out)
+        self.assertEqual(result.returncode, 0, result.stderr)
+        self.assertTrue(is_png(out, 3000))
+        n_layer = sum(np.abs(sph_snapshot.load(self.paths[-1])["position"][:, 2] - 0.25e-3) < 0.5e-4)
+        self.assertIn(f"{n_layer} particles", result.stdout)
+
+
+if __name__ == "__main__":
+    unittest.main()
