@@ -7,7 +7,8 @@ module sph_simulation
     use sph_mpi_env, only: mpi_env_t, global_sum, global_max, global_min
     use sph_errors, only: fatal_collective
     use sph_logger, only: log_info
-    use sph_particles, only: particles_t, particles_init, particles_permute_owned, KIND_FLUID
+    use sph_particles, only: particles_t, particles_init, particles_gather, KIND_FLUID, &
+        HALO_MOVE, HALO_DENSITY, HALO_STRAIN
     use sph_physics, only: physics_t, physics_from_config, DENSITY_SUMMATION, &
         VISCOSITY_STRAIN_RATE, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR
     use sph_kernel, only: kernel_name
@@ -199,7 +200,9 @@ contains
         integer, allocatable :: order(:)
         allocate(order(sim%p%n_owned))
         call cell_sort_order(sim%p%x, sim%p%n_owned, sim%p%dim, sim%phys%kernel%support, order)
-        call particles_permute_owned(sim%p, order)
+        call particles_gather(sim%p, order)
+        sim%p%n_ghost = 0
+        sim%p%n_total = sim%p%n_owned
         call halo_build(sim%halo, sim%domain, env, sim%p)
         call refresh_neighbours(sim)
     end subroutine simulation_prepare_neighbours
@@ -220,13 +223,13 @@ contains
         type(mpi_env_t), intent(in) :: env
         if (sim%phys%density_method == DENSITY_SUMMATION) then
             call compute_summation_density(sim%phys, sim%p, sim%nl)
-            call halo_refresh(sim%halo, env, sim%p)
+            call halo_refresh(sim%halo, env, sim%p, HALO_DENSITY)
             call build_mirrors(sim%phys, sim%geo, sim%p)
         end if
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
         if (sim%phys%viscosity == VISCOSITY_STRAIN_RATE) then
             call compute_strain_rate(sim%phys, sim%p, sim%nl)
-            call halo_refresh(sim%halo, env, sim%p)
+            call halo_refresh(sim%halo, env, sim%p, HALO_STRAIN)
             call build_mirrors(sim%phys, sim%geo, sim%p)
         end if
         call compute_rates(sim%phys, sim%p, sim%nl)
@@ -265,7 +268,7 @@ contains
         call save_step_start(sim%p)
         ! predictor
         call advance(sim%p, 0.5_wp * dt, integrate_density)
-        call halo_refresh(sim%halo, env, sim%p)
+        call halo_refresh(sim%halo, env, sim%p, HALO_MOVE)
         ! a particle moves at most (vmax + amax dt/2) dt/2 in the half step; the list stays
         ! valid while two particles cannot close in by more than the skin. Mirrors change
         ! with the ghosts, so mirror walls always rebuild.

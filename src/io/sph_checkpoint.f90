@@ -7,13 +7,13 @@
 module sph_checkpoint
     use sph_kinds, only: wp, i4, i8
     use sph_mpi_env, only: mpi_env_t, broadcast_text
-    use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL
+    use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL, FIELD_CHECKPOINT
     use sph_domain, only: domain_t, domain_set_tree
     use sph_hdf5, only: h5_file_t, h5_open_read, h5_close, h5_group_create, h5_write_rows, &
-        h5_read_rows, h5_dataset_rows, h5_write_attribute, h5_read_attribute
+        h5_read_rows, h5_dataset_rows, h5_write_attribute, h5_read_attribute, h5_row_layout
     use sph_filesystem, only: list_directory
     use sph_snapshot, only: snapshot_begin, snapshot_end, read_snapshot_header, &
-        read_snapshot_rows
+        read_snapshot_rows, write_particle_fields, read_particle_fields, check_datasets
     implicit none
     private
     public :: write_checkpoint, read_checkpoint, checkpoint_filename, find_latest_checkpoint
@@ -37,7 +37,7 @@ contains
     subroutine write_checkpoint(env, p, domain, path, time, step, dimension, code_version, &
                                 input_text, snapshot_index, stat, errmsg)
         type(mpi_env_t), intent(in) :: env
-        type(particles_t), intent(in) :: p
+        type(particles_t), intent(inout) :: p
         type(domain_t), intent(in) :: domain
         character(len=*), intent(in) :: path, code_version, input_text, snapshot_index
         real(wp), intent(in) :: time
@@ -46,9 +46,9 @@ contains
         integer, intent(out) :: stat
         character(len=:), allocatable, intent(out) :: errmsg
         type(h5_file_t) :: file
-        integer :: n, n_tree
-        integer(i8) :: my_rows(1)
-        real(wp), allocatable :: normals(:, :), distances(:), cuts(:)
+        integer :: n, n_tree, k
+        integer(i8) :: my_rows(1), offset, total
+        real(wp), allocatable :: cuts(:)
         integer(i4), allocatable :: tree(:)
 
         ! every owned particle is a real one (ghosts and mirrors live after n_owned), so the
@@ -65,11 +65,9 @@ contains
         if (stat /= 0) return
         call h5_write_attribute(file, 'checkpoint_format_version', checkpoint_format_version)
         call h5_write_attribute(file, 'snapshot_index', snapshot_index)
-        allocate(normals(3, max(n, 1)), distances(max(n, 1)))
-        normals(:, 1:n) = p%wall_normal(:, 1:n)
-        distances(1:n) = p%wall_distance(1:n)
-        call h5_write_rows(env, file, 'particles/wall_normal', normals, n)
-        call h5_write_rows(env, file, 'particles/wall_distance', distances, n)
+        call h5_row_layout(env, n, offset, total)
+        call write_particle_fields(env, file, p, FIELD_CHECKPOINT, [(k, k = 1, n)], n, offset, &
+            total)
         call h5_group_create(file, 'checkpoint')
         my_rows = int(n, i8)
         call h5_write_rows(env, file, 'checkpoint/rank_rows', my_rows, 1)
@@ -110,7 +108,8 @@ contains
         integer(i8) :: n_rows, offset, share, extra
         integer(i8), allocatable :: rank_rows(:)
         integer(i4), allocatable :: axis(:), left(:), right(:), ranks(:)
-        real(wp), allocatable :: cuts(:), normals(:, :), distances(:)
+        real(wp), allocatable :: cuts(:)
+        character(len=:), allocatable :: message
 
         same_layout = .false.
         snapshot_index = ''
@@ -153,14 +152,19 @@ contains
             n = int(share + merge(1_i8, 0_i8, env%rank < extra))
             offset = env%rank * share + min(int(env%rank, i8), extra)
         end if
-        allocate(normals(3, max(n, 1)), distances(max(n, 1)))
-        call h5_read_rows(file, 'particles/wall_normal', normals, n, offset)
-        call h5_read_rows(file, 'particles/wall_distance', distances, n, offset)
         call h5_close(file)
         call read_snapshot_rows(env, path, p, offset, n, stat, errmsg)
         if (stat /= 0) return
-        p%wall_normal(:, 1:n) = normals(:, 1:n)
-        p%wall_distance(1:n) = distances(1:n)
+        ! then what only checkpoints hold, over the defaults the snapshot reader set
+        call h5_open_read(env, path, file, stat)
+        if (stat == 0) call check_datasets(file, n_rows, stat, message, FIELD_CHECKPOINT, p)
+        if (stat /= 0) then
+            errmsg = "'" // path // "': the checkpoint datasets are missing: refused"
+            call h5_close(file)
+            return
+        end if
+        call read_particle_fields(env, file, p, FIELD_CHECKPOINT, n, offset)
+        call h5_close(file)
         ! the start-of-step copies are rebuilt by the next step; keep them defined
         p%x_old(:, 1:n) = p%x(:, 1:n)
         p%v_old(:, 1:n) = p%v(:, 1:n)

@@ -51,11 +51,11 @@ module sph_hdf5
 
     !> Collective row writers: (env, file, name, values, local [, offset, total]).
     interface h5_write_rows
-        module procedure write_rows_wp, write_rows_wp3, write_rows_i8, write_rows_i4
+        module procedure write_rows_wp, write_rows_wpn, write_rows_i8, write_rows_i4
     end interface
     !> Collective row readers: (file, name, values, local, offset).
     interface h5_read_rows
-        module procedure read_rows_wp, read_rows_wp3, read_rows_i8, read_rows_i4
+        module procedure read_rows_wp, read_rows_wpn, read_rows_i8, read_rows_i4
     end interface
     !> (file, name, value [, at]); `at` is the object (group or dataset) path, default root.
     interface h5_write_attribute
@@ -402,27 +402,25 @@ contains
             offset, total)
     end subroutine write_rows_wp
 
-    !> real(wp) (3, N) in Fortran: N x 3 as h5py and ParaView see it.
-    subroutine write_rows_wp3(env, file, name, values, local, offset, total)
+    !> real(wp) (w, N) in Fortran: N x w as h5py and ParaView see it.
+    subroutine write_rows_wpn(env, file, name, values, local, offset, total)
         type(mpi_env_t), intent(in) :: env
         type(h5_file_t), intent(in) :: file
         character(len=*), intent(in) :: name
         real(wp), intent(in), target, contiguous :: values(:, :)
         integer, intent(in) :: local
         integer(i8), intent(in), optional :: offset, total
-        real(wp), target :: dummy(3)
+        real(wp), target :: dummy(size(values, 1))
         type(c_ptr) :: buffer
-        if (size(values, 1) /= 3) call fatal_abort('h5_write_rows ' // name, &
-            'a row array must have 3 values per row (shape (3, n))')
         dummy = 0.0_wp
         buffer = c_loc(dummy)
         if (local > 0) then
             call check_capacity(name, size(values, 2), local)
             buffer = c_loc(values)
         end if
-        call write_rows(env, file, name, H5T_IEEE_F64LE, mem_type_wp(), 3, local, buffer, &
-            offset, total)
-    end subroutine write_rows_wp3
+        call write_rows(env, file, name, H5T_IEEE_F64LE, mem_type_wp(), size(values, 1), &
+            local, buffer, offset, total)
+    end subroutine write_rows_wpn
 
     subroutine write_rows_i8(env, file, name, values, local, offset, total)
         type(mpi_env_t), intent(in) :: env
@@ -543,23 +541,22 @@ contains
         call read_rows(file, name, mem_type_wp(), 0, local, offset, buffer)
     end subroutine read_rows_wp
 
-    subroutine read_rows_wp3(file, name, values, local, offset)
+    !> real(wp) (w, N) rows of an N x w dataset.
+    subroutine read_rows_wpn(file, name, values, local, offset)
         type(h5_file_t), intent(in) :: file
         character(len=*), intent(in) :: name
         real(wp), intent(inout), target, contiguous :: values(:, :)
         integer, intent(in) :: local
         integer(i8), intent(in) :: offset
-        real(wp), target :: dummy(3)
+        real(wp), target :: dummy(size(values, 1))
         type(c_ptr) :: buffer
-        if (size(values, 1) /= 3) call fatal_abort('h5_read_rows ' // name, &
-            'a row array must have 3 values per row (shape (3, n))')
         buffer = c_loc(dummy)
         if (local > 0) then
             call check_capacity(name, size(values, 2), local)
             buffer = c_loc(values)
         end if
-        call read_rows(file, name, mem_type_wp(), 3, local, offset, buffer)
-    end subroutine read_rows_wp3
+        call read_rows(file, name, mem_type_wp(), size(values, 1), local, offset, buffer)
+    end subroutine read_rows_wpn
 
     subroutine read_rows_i8(file, name, values, local, offset)
         type(h5_file_t), intent(in) :: file

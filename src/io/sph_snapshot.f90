@@ -14,7 +14,8 @@ module sph_snapshot
     use sph_kinds, only: wp, i4, i8
     use sph_mpi_env, only: mpi_env_t, global_max, broadcast_text
     use sph_errors, only: fatal_collective, fatal_abort
-    use sph_particles, only: particles_t, particles_reserve, KIND_FLUID, KIND_WALL, KIND_VIRTUAL
+    use sph_particles, only: particles_t, particles_reserve, particles_visit, field_list, &
+        field_info_t, field_op_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL, FIELD_SNAPSHOT
     use sph_hdf5, only: h5_file_t, h5_create, h5_open_read, h5_close, h5_group_create, &
         h5_row_layout, h5_write_rows, h5_read_rows, h5_dataset_rows, h5_write_attribute, &
         h5_read_attribute
@@ -25,6 +26,7 @@ module sph_snapshot
     public :: read_snapshot_rows
     public :: snapshot_begin, snapshot_end
     public :: snapshot_format_name, snapshot_format_version
+    public :: write_particle_fields, read_particle_fields, check_datasets
 
     character(len=*), parameter :: snapshot_format_name = 'sphremesh-snapshot'
     integer(i4), parameter :: snapshot_format_version = 1
@@ -38,12 +40,20 @@ module sph_snapshot
         module procedure read_particles_rows
     end interface
 
-    !> The particle datasets and their widths (0: one column); the row count is that of `id`.
-    integer, parameter :: n_datasets = 11
-    character(len=*), parameter :: dataset_names(n_datasets) = [character(len=16) :: &
-        'position', 'velocity', 'density', 'pressure', 'mass', 'smoothing_length', 'energy', &
-        'id', 'kind', 'level', 'rank']
-    integer, parameter :: dataset_widths(n_datasets) = [3, 3, 0, 0, 0, 0, 0, 0, 0, 0, 0]
+    !> Writes (or reads) the fields of the table selected by `mask` as datasets
+    !> particles/<name>: rows(1:n) of the particles at `offset` of `total` (reading: n rows
+    !> from `offset` into slots 1..n). Integers of FIELD_INT are int32 in the file.
+    type, extends(field_op_t) :: field_io_t
+        type(mpi_env_t), pointer :: env => null()
+        type(h5_file_t), pointer :: file => null()
+        integer :: mask = FIELD_SNAPSHOT
+        logical :: reading = .false.
+        integer :: n = 0
+        integer(i8) :: offset = 0, total = 0
+        integer, allocatable :: rows(:)
+    contains
+        procedure :: real1 => io_real1, real2 => io_real2, int8 => io_int8, int4 => io_int4
+    end type field_io_t
 
 contains
 
@@ -63,7 +73,7 @@ contains
     subroutine write_snapshot(env, p, path, time, step, dimension, code_version, input_text, &
                               stat, errmsg)
         type(mpi_env_t), intent(in) :: env
-        type(particles_t), intent(in) :: p
+        type(particles_t), intent(inout) :: p
         character(len=*), intent(in) :: path, code_version, input_text
         real(wp), intent(in) :: time
         integer(i8), intent(in) :: step
@@ -86,19 +96,17 @@ contains
     subroutine snapshot_begin(env, p, path, time, step, dimension, code_version, input_text, &
                               file, stat, errmsg)
         type(mpi_env_t), intent(in) :: env
-        type(particles_t), intent(in) :: p
+        type(particles_t), intent(inout) :: p
         character(len=*), intent(in) :: path, code_version, input_text
         real(wp), intent(in) :: time
         integer(i8), intent(in) :: step
         integer, intent(in) :: dimension
-        type(h5_file_t), intent(out) :: file
+        type(h5_file_t), intent(inout), target :: file
         integer, intent(out) :: stat
         character(len=:), allocatable, intent(out) :: errmsg
         integer :: n, i, dir_end, my_stat
         integer(i8) :: offset, total
         integer, allocatable :: rows(:)
-        real(wp), allocatable :: v3(:, :), v1(:)
-        integer(i8), allocatable :: ids(:)
         integer(i4), allocatable :: ints(:)
         character(len=:), allocatable :: date
 
@@ -149,27 +157,8 @@ contains
         call h5_write_attribute(file, 'format_version', snapshot_format_version)
 
         call h5_group_create(file, 'particles')
-        allocate(v3(3, max(n, 1)), v1(max(n, 1)), ids(max(n, 1)), ints(max(n, 1)))
-        v3(:, 1:n) = p%x(:, rows(1:n))
-        call h5_write_rows(env, file, 'particles/position', v3, n, offset, total)
-        v3(:, 1:n) = p%v(:, rows(1:n))
-        call h5_write_rows(env, file, 'particles/velocity', v3, n, offset, total)
-        v1(1:n) = p%rho(rows(1:n))
-        call h5_write_rows(env, file, 'particles/density', v1, n, offset, total)
-        v1(1:n) = p%p(rows(1:n))
-        call h5_write_rows(env, file, 'particles/pressure', v1, n, offset, total)
-        v1(1:n) = p%m(rows(1:n))
-        call h5_write_rows(env, file, 'particles/mass', v1, n, offset, total)
-        v1(1:n) = p%h(rows(1:n))
-        call h5_write_rows(env, file, 'particles/smoothing_length', v1, n, offset, total)
-        v1(1:n) = p%e(rows(1:n))
-        call h5_write_rows(env, file, 'particles/energy', v1, n, offset, total)
-        ids(1:n) = p%id(rows(1:n))
-        call h5_write_rows(env, file, 'particles/id', ids, n, offset, total)
-        ints(1:n) = int(p%kind(rows(1:n)), i4)
-        call h5_write_rows(env, file, 'particles/kind', ints, n, offset, total)
-        ints(1:n) = int(p%level(rows(1:n)), i4)
-        call h5_write_rows(env, file, 'particles/level', ints, n, offset, total)
+        call write_particle_fields(env, file, p, FIELD_SNAPSHOT, rows, n, offset, total)
+        allocate(ints(max(n, 1)))
         ints(1:n) = int(env%rank, i4)
         call h5_write_rows(env, file, 'particles/rank', ints, n, offset, total)
     end subroutine snapshot_begin
@@ -275,10 +264,7 @@ contains
         integer, intent(in) :: n_rows
         integer, intent(out), optional :: stat
         character(len=:), allocatable, intent(out), optional :: errmsg
-        type(h5_file_t) :: file
-        real(wp), allocatable :: v3(:, :), v1(:)
-        integer(i8), allocatable :: ids(:)
-        integer(i4), allocatable :: ints(:)
+        type(h5_file_t), target :: file
         integer(i8) :: total
         integer(i4) :: dim4
         integer :: my_stat, n
@@ -312,27 +298,7 @@ contains
         n = n_rows
         p%dim = dim4
         call particles_reserve(p, n)
-        allocate(v3(3, max(n, 1)), v1(max(n, 1)), ids(max(n, 1)), ints(max(n, 1)))
-        call h5_read_rows(file, 'particles/position', v3, n, first_row)
-        p%x(:, 1:n) = v3(:, 1:n)
-        call h5_read_rows(file, 'particles/velocity', v3, n, first_row)
-        p%v(:, 1:n) = v3(:, 1:n)
-        call h5_read_rows(file, 'particles/density', v1, n, first_row)
-        p%rho(1:n) = v1(1:n)
-        call h5_read_rows(file, 'particles/pressure', v1, n, first_row)
-        p%p(1:n) = v1(1:n)
-        call h5_read_rows(file, 'particles/mass', v1, n, first_row)
-        p%m(1:n) = v1(1:n)
-        call h5_read_rows(file, 'particles/smoothing_length', v1, n, first_row)
-        p%h(1:n) = v1(1:n)
-        call h5_read_rows(file, 'particles/energy', v1, n, first_row)
-        p%e(1:n) = v1(1:n)
-        call h5_read_rows(file, 'particles/id', ids, n, first_row)
-        p%id(1:n) = ids(1:n)
-        call h5_read_rows(file, 'particles/kind', ints, n, first_row)
-        p%kind(1:n) = ints(1:n)
-        call h5_read_rows(file, 'particles/level', ints, n, first_row)
-        p%level(1:n) = ints(1:n)
+        call read_particle_fields(env, file, p, FIELD_SNAPSHOT, n, first_row)
         call h5_close(file, my_stat)
         ! what a snapshot does not hold: defined values (the next step rebuilds them)
         p%x_old(:, 1:n) = p%x(:, 1:n)
@@ -393,27 +359,165 @@ contains
         if (stat /= 0) call h5_close(file)
     end subroutine open_checked
 
-    !> Every particle dataset present, of the right width, all with the same rows.
-    subroutine check_datasets(file, rows, stat, message)
+    !> Every dataset of the fields selected by mask (default FIELD_SNAPSHOT; with p, its
+    !> run-time fields too) present (and the rank dataset, for snapshot fields), of the right
+    !> width, all with the same rows.
+    subroutine check_datasets(file, rows, stat, message, mask, p)
         type(h5_file_t), intent(in) :: file
         integer(i8), intent(out) :: rows
         integer, intent(out) :: stat
         character(len=:), allocatable, intent(out) :: message
-        integer :: k, width
-        integer(i8) :: these
+        integer, intent(in), optional :: mask
+        type(particles_t), intent(in), optional :: p
+        type(field_info_t), allocatable :: fields(:)
+        integer :: k, selection
+        selection = FIELD_SNAPSHOT
+        if (present(mask)) selection = mask
         stat = 0
         message = ''
         rows = h5_dataset_rows(file, 'particles/id')
-        do k = 1, n_datasets
-            these = h5_dataset_rows(file, 'particles/' // trim(dataset_names(k)), width)
-            if (these < 0 .or. these /= rows .or. width /= dataset_widths(k)) then
-                stat = 1
-                message = "'" // file%path // "': the dataset /particles/" // &
-                    trim(dataset_names(k)) // " is missing or has the wrong shape: refused"
-                return
-            end if
+        fields = field_list(p)
+        do k = 1, size(fields)
+            if (iand(fields(k)%flags, selection) == 0) cycle
+            call check_one(trim(fields(k)%name), merge(0, fields(k)%width, &
+                fields(k)%width == 1))
+            if (stat /= 0) return
         end do
+        if (iand(selection, FIELD_SNAPSHOT) /= 0) call check_one('rank', 0)
+    contains
+        subroutine check_one(name, expected_width)
+            character(len=*), intent(in) :: name
+            integer, intent(in) :: expected_width
+            integer :: width
+            integer(i8) :: these
+            these = h5_dataset_rows(file, 'particles/' // name, width)
+            if (these < 0 .or. these /= rows .or. width /= expected_width) then
+                stat = 1
+                message = "'" // file%path // "': the dataset /particles/" // name // &
+                    " is missing or has the wrong shape: refused"
+            end if
+        end subroutine check_one
     end subroutine check_datasets
+
+    !> Write the fields selected by mask (FIELD_SNAPSHOT, FIELD_CHECKPOINT) of particles
+    !> rows(1:n) as rows offset+1.. of particles/<name> (collective).
+    subroutine write_particle_fields(env, file, p, mask, rows, n, offset, total)
+        type(mpi_env_t), intent(in), target :: env
+        type(h5_file_t), intent(in), target :: file
+        type(particles_t), intent(inout) :: p
+        integer, intent(in) :: mask, n
+        integer, intent(in) :: rows(:)
+        integer(i8), intent(in) :: offset, total
+        type(field_io_t) :: op
+        op%env => env
+        op%file => file
+        op%mask = mask
+        op%n = n
+        op%rows = rows(1:n)
+        op%offset = offset
+        op%total = total
+        call particles_visit(p, op)
+    end subroutine write_particle_fields
+
+    !> Read rows offset+1..offset+n of the fields selected by mask into slots 1..n (the
+    !> datasets must exist: check_datasets first).
+    subroutine read_particle_fields(env, file, p, mask, n, offset)
+        type(mpi_env_t), intent(in), target :: env
+        type(h5_file_t), intent(in), target :: file
+        type(particles_t), intent(inout) :: p
+        integer, intent(in) :: mask, n
+        integer(i8), intent(in) :: offset
+        type(field_io_t) :: op
+        op%env => env
+        op%file => file
+        op%mask = mask
+        op%reading = .true.
+        op%n = n
+        op%offset = offset
+        call particles_visit(p, op)
+    end subroutine read_particle_fields
+
+    subroutine io_real1(op, a, info)
+        class(field_io_t), intent(inout) :: op
+        real(wp), allocatable, intent(inout) :: a(:)
+        type(field_info_t), intent(in) :: info
+        real(wp), allocatable :: buffer(:)
+        if (iand(info%flags, op%mask) == 0) return
+        allocate(buffer(max(op%n, 1)))
+        if (op%reading) then
+            call h5_read_rows(op%file, 'particles/' // trim(info%name), buffer, op%n, op%offset)
+            a(1:op%n) = buffer(1:op%n)
+        else
+            buffer(1:op%n) = a(op%rows)
+            call h5_write_rows(op%env, op%file, 'particles/' // trim(info%name), buffer, op%n, &
+                op%offset, op%total)
+        end if
+    end subroutine io_real1
+
+    subroutine io_real2(op, a, info)
+        class(field_io_t), intent(inout) :: op
+        real(wp), allocatable, intent(inout) :: a(:, :)
+        type(field_info_t), intent(in) :: info
+        real(wp), allocatable :: buffer(:, :), column(:)
+        if (iand(info%flags, op%mask) == 0) return
+        if (info%width == 1) then
+            ! one value per particle: a one-dimensional dataset, like the rank-1 fields
+            allocate(column(max(op%n, 1)))
+            if (op%reading) then
+                call h5_read_rows(op%file, 'particles/' // trim(info%name), column, op%n, &
+                    op%offset)
+                a(1, 1:op%n) = column(1:op%n)
+            else
+                column(1:op%n) = a(1, op%rows)
+                call h5_write_rows(op%env, op%file, 'particles/' // trim(info%name), column, &
+                    op%n, op%offset, op%total)
+            end if
+            return
+        end if
+        allocate(buffer(info%width, max(op%n, 1)))
+        if (op%reading) then
+            call h5_read_rows(op%file, 'particles/' // trim(info%name), buffer, op%n, op%offset)
+            a(:, 1:op%n) = buffer(:, 1:op%n)
+        else
+            buffer(:, 1:op%n) = a(:, op%rows)
+            call h5_write_rows(op%env, op%file, 'particles/' // trim(info%name), buffer, op%n, &
+                op%offset, op%total)
+        end if
+    end subroutine io_real2
+
+    subroutine io_int8(op, a, info)
+        class(field_io_t), intent(inout) :: op
+        integer(i8), allocatable, intent(inout) :: a(:)
+        type(field_info_t), intent(in) :: info
+        integer(i8), allocatable :: buffer(:)
+        if (iand(info%flags, op%mask) == 0) return
+        allocate(buffer(max(op%n, 1)))
+        if (op%reading) then
+            call h5_read_rows(op%file, 'particles/' // trim(info%name), buffer, op%n, op%offset)
+            a(1:op%n) = buffer(1:op%n)
+        else
+            buffer(1:op%n) = a(op%rows)
+            call h5_write_rows(op%env, op%file, 'particles/' // trim(info%name), buffer, op%n, &
+                op%offset, op%total)
+        end if
+    end subroutine io_int8
+
+    subroutine io_int4(op, a, info)
+        class(field_io_t), intent(inout) :: op
+        integer, allocatable, intent(inout) :: a(:)
+        type(field_info_t), intent(in) :: info
+        integer(i4), allocatable :: buffer(:)
+        if (iand(info%flags, op%mask) == 0) return
+        allocate(buffer(max(op%n, 1)))
+        if (op%reading) then
+            call h5_read_rows(op%file, 'particles/' // trim(info%name), buffer, op%n, op%offset)
+            a(1:op%n) = buffer(1:op%n)
+        else
+            buffer(1:op%n) = int(a(op%rows), i4)
+            call h5_write_rows(op%env, op%file, 'particles/' // trim(info%name), buffer, op%n, &
+                op%offset, op%total)
+        end if
+    end subroutine io_int4
 
     !> The same status on every rank: the largest.
     integer function agreed(env, stat)

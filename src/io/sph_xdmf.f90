@@ -4,6 +4,7 @@
 module sph_xdmf
     use sph_kinds, only: wp, i8
     use sph_filesystem, only: rename_file
+    use sph_particles, only: field_list, field_info_t, FIELD_SNAPSHOT, FIELD_REAL, FIELD_INT8
     implicit none
     private
     public :: xdmf_index_entry, write_xdmf
@@ -31,11 +32,12 @@ contains
         real(wp) :: time
         integer(i8) :: step, rows
         character(len=512) :: file_name
-        character(len=32) :: n_text
-        character(len=*), parameter :: scalars(6) = [character(len=16) :: 'density', 'pressure', &
-            'mass', 'smoothing_length', 'energy', 'id']
-        character(len=*), parameter :: ints(3) = [character(len=8) :: 'kind', 'level', 'rank']
+        character(len=32) :: n_text, width_text
+        type(field_info_t), allocatable :: fields(:)
+        character(len=16) :: attribute_type
 
+        ! every snapshot field of the particle table but the positions (the geometry)
+        fields = field_list()
         open(newunit=unit, file=path // '.tmp', status='replace', action='write', iostat=stat)
         if (stat /= 0) return
         write(unit, '(a)') '<?xml version="1.0" ?>'
@@ -61,22 +63,31 @@ contains
                 'Center="Node">'
             call data_item('velocity', 'Float', 8, trim(n_text) // ' 3')
             write(unit, '(a)') '    </Attribute>'
-            do f = 1, size(scalars)
-                write(unit, '(a)') '    <Attribute Name="' // trim(scalars(f)) // &
-                    '" AttributeType="Scalar" Center="Node">'
-                if (trim(scalars(f)) == 'id') then
-                    call data_item('id', 'Int', 8, trim(n_text))
-                else
-                    call data_item(trim(scalars(f)), 'Float', 8, trim(n_text))
-                end if
+            do f = 1, size(fields)
+                if (iand(fields(f)%flags, FIELD_SNAPSHOT) == 0) cycle
+                if (fields(f)%name == 'position' .or. fields(f)%name == 'velocity') cycle
+                select case (fields(f)%width)
+                case (1); attribute_type = 'Scalar'
+                case (3); attribute_type = 'Vector'
+                case (6); attribute_type = 'Tensor6'
+                case default; attribute_type = 'Matrix'
+                end select
+                write(unit, '(a)') '    <Attribute Name="' // trim(fields(f)%name) // &
+                    '" AttributeType="' // trim(attribute_type) // '" Center="Node">'
+                width_text = n_text
+                if (fields(f)%width > 1) write(width_text, '(a,1x,i0)') trim(n_text), &
+                    fields(f)%width
+                select case (fields(f)%storage)
+                case (FIELD_REAL); call data_item(trim(fields(f)%name), 'Float', 8, trim(width_text))
+                case (FIELD_INT8); call data_item(trim(fields(f)%name), 'Int', 8, trim(width_text))
+                case default; call data_item(trim(fields(f)%name), 'Int', 4, trim(width_text))
+                end select
                 write(unit, '(a)') '    </Attribute>'
             end do
-            do f = 1, size(ints)
-                write(unit, '(a)') '    <Attribute Name="' // trim(ints(f)) // &
-                    '" AttributeType="Scalar" Center="Node">'
-                call data_item(trim(ints(f)), 'Int', 4, trim(n_text))
-                write(unit, '(a)') '    </Attribute>'
-            end do
+            ! the writing rank of each row (sph_snapshot)
+            write(unit, '(a)') '    <Attribute Name="rank" AttributeType="Scalar" Center="Node">'
+            call data_item('rank', 'Int', 4, trim(n_text))
+            write(unit, '(a)') '    </Attribute>'
             write(unit, '(a)') '   </Grid>'
         end do
         write(unit, '(a)') '  </Grid>'

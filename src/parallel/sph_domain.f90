@@ -10,7 +10,7 @@ module sph_domain
     use sph_errors, only: check_mpi, fatal_collective
     use sph_mpi_env, only: mpi_env_t, mpi_wp, global_sum, global_max
     use sph_particles, only: particles_t, particles_pack, particles_unpack, particles_reserve, &
-        pack_size
+        particles_gather, pack_widths, ALL_FIELDS
     implicit none
     private
     public :: domain_t, domain_create, domain_partition, domain_owner, domain_wrap
@@ -322,15 +322,17 @@ contains
     end function domain_imbalance
 
     !> Send every owned particle that left this rank's subdomain to its owner (periodic faces
-    !> included: positions are wrapped first). Ghosts are dropped. The global count is checked.
+    !> included: positions are wrapped first), with every field. Ghosts are dropped. The
+    !> global count is checked.
     subroutine migrate_particles(domain, env, p)
         type(domain_t), intent(in) :: domain
         type(mpi_env_t), intent(in) :: env
         type(particles_t), intent(inout) :: p
         integer, allocatable :: dest(:), send_count(:), recv_count(:), send_disp(:), recv_disp(:)
-        integer, allocatable :: fill(:), all_counts(:, :)
+        integer, allocatable :: fill(:), all_counts(:, :), leaving(:), staying(:)
         real(wp), allocatable :: send_buf(:, :), recv_buf(:, :)
-        integer :: i, r, kept, n_send, n_recv, ierr, counts(4)
+        integer(i8), allocatable :: send_ibuf(:, :), recv_ibuf(:, :)
+        integer :: i, r, kept, n_send, n_recv, ierr, counts(4), n_real, n_int
         integer(i8) :: before, after
         character(len=:), allocatable :: culprits
         character(len=64) :: item
@@ -355,25 +357,32 @@ contains
             send_disp(r) = send_disp(r - 1) + send_count(r - 1)
             recv_disp(r) = recv_disp(r - 1) + recv_count(r - 1)
         end do
-        allocate(send_buf(pack_size, max(n_send, 1)), recv_buf(pack_size, max(n_recv, 1)))
+        ! leavers grouped by destination, the others keep their order
+        allocate(leaving(n_send), staying(p%n_owned - n_send))
         fill = send_disp
         kept = 0
         do i = 1, p%n_owned
             if (dest(i) /= env%rank) then
                 fill(dest(i)) = fill(dest(i)) + 1
-                call particles_pack(p, i, send_buf(:, fill(dest(i))))
+                leaving(fill(dest(i))) = i
             else
                 kept = kept + 1
-                if (kept /= i) call move_particle(i, kept)
+                staying(kept) = i
             end if
         end do
-        call MPI_Alltoallv(send_buf, send_count * pack_size, send_disp * pack_size, mpi_wp, &
-            recv_buf, recv_count * pack_size, recv_disp * pack_size, mpi_wp, env%comm, ierr)
+        call pack_widths(p, ALL_FIELDS, n_real, n_int)
+        allocate(send_buf(n_real, max(n_send, 1)), recv_buf(n_real, max(n_recv, 1)))
+        allocate(send_ibuf(n_int, max(n_send, 1)), recv_ibuf(n_int, max(n_recv, 1)))
+        call particles_pack(p, ALL_FIELDS, leaving, n_send, send_buf, send_ibuf)
+        if (n_send > 0) call particles_gather(p, staying)
+        call MPI_Alltoallv(send_buf, send_count * n_real, send_disp * n_real, mpi_wp, &
+            recv_buf, recv_count * n_real, recv_disp * n_real, mpi_wp, env%comm, ierr)
         call check_mpi(ierr, 'migrate_particles data')
+        call MPI_Alltoallv(send_ibuf, send_count * n_int, send_disp * n_int, MPI_INTEGER8, &
+            recv_ibuf, recv_count * n_int, recv_disp * n_int, MPI_INTEGER8, env%comm, ierr)
+        call check_mpi(ierr, 'migrate_particles integers')
         call particles_reserve(p, kept + n_recv)
-        do i = 1, n_recv
-            call particles_unpack(p, kept + i, recv_buf(:, i))
-        end do
+        call particles_unpack(p, ALL_FIELDS, kept + 1, n_recv, recv_buf, recv_ibuf)
         counts = [p%n_owned, n_send, n_recv, kept + n_recv]
         p%n_owned = kept + n_recv
         p%n_total = p%n_owned
@@ -394,12 +403,5 @@ contains
             call fatal_collective('migrate_particles', 'global particle count changed ' // &
                 trim(item) // ':' // culprits)
         end if
-    contains
-        subroutine move_particle(from, to)
-            integer, intent(in) :: from, to
-            real(wp) :: buffer(pack_size)
-            call particles_pack(p, from, buffer)
-            call particles_unpack(p, to, buffer)
-        end subroutine move_particle
     end subroutine migrate_particles
 end module sph_domain

@@ -5,18 +5,18 @@
 !> the stages of a time step where the physics needs up-to-date neighbours.
 module sph_halo
     use mpi_f08
-    use sph_kinds, only: wp
+    use sph_kinds, only: wp, i8
     use sph_errors, only: check_mpi
     use sph_mpi_env, only: mpi_env_t, mpi_wp
     use sph_domain, only: domain_t, far
     use sph_particles, only: particles_t, particles_pack, particles_unpack, particles_reserve, &
-        pack_size
+        pack_widths, HALO_GHOST
     implicit none
     private
     public :: halo_t, halo_setup, halo_build_start, halo_build_finish, halo_build
     public :: halo_refresh_start, halo_refresh_finish, halo_refresh
 
-    integer, parameter :: tag_count = 101, tag_data = 102
+    integer, parameter :: tag_count = 101, tag_data = 102, tag_ints = 103
 
     type :: halo_t
         real(wp) :: reach = 0.0_wp
@@ -32,8 +32,11 @@ module sph_halo
         integer, allocatable :: send_index(:)
         real(wp), allocatable :: send_shift(:, :)
         integer, allocatable :: recv_count(:), recv_offset(:)
-        ! in-flight exchange
+        ! in-flight exchange: the fields of one stage (mask), reals and integers apart
+        integer :: mask = HALO_GHOST
+        integer :: n_real = 0, n_int = 0
         real(wp), allocatable :: send_buf(:, :), recv_buf(:, :)
+        integer(i8), allocatable :: send_ibuf(:, :), recv_ibuf(:, :)
         type(MPI_Request), allocatable :: requests(:)
         integer :: n_requests = 0
     end type halo_t
@@ -90,7 +93,7 @@ contains
         allocate(halo%send_count(n), halo%send_offset(n + 1), halo%recv_count(n), &
             halo%recv_offset(n + 1))
         if (allocated(halo%requests)) deallocate(halo%requests)
-        allocate(halo%requests(2 * n))
+        allocate(halo%requests(4 * n))   ! reals and integers, each way
     end subroutine halo_setup
 
     pure logical function boxes_touch(alo, ahi, blo, bhi)
@@ -168,7 +171,7 @@ contains
         do q = 1, halo%n_peers
             halo%recv_offset(q + 1) = halo%recv_offset(q) + halo%recv_count(q)
         end do
-        call post_data(halo, env, p)
+        call post_data(halo, env, p, HALO_GHOST)
     contains
         logical function reaches(ii, kk)
             integer, intent(in) :: ii, kk
@@ -187,47 +190,83 @@ contains
         end function reaches
     end subroutine halo_build_start
 
-    !> Pack the send list with the current fields (shift applied) and post receives and sends.
-    subroutine post_data(halo, env, p)
+    !> Pack the send list with the fields of `mask` (shift applied to positions) and post the
+    !> receives and sends: reals and integers travel in separate messages.
+    subroutine post_data(halo, env, p, mask)
         type(halo_t), intent(inout) :: halo
         type(mpi_env_t), intent(in) :: env
-        type(particles_t), intent(in) :: p
-        integer :: q, k, n_send, n_recv, ierr, peer
+        type(particles_t), intent(inout) :: p
+        integer, intent(in) :: mask
+        integer :: q, n_send, n_recv, ierr, peer
         n_send = halo%send_offset(halo%n_peers + 1)
         n_recv = halo%recv_offset(halo%n_peers + 1)
-        if (allocated(halo%send_buf)) then
-            if (size(halo%send_buf, 2) < n_send) deallocate(halo%send_buf)
-        end if
-        if (.not. allocated(halo%send_buf)) allocate(halo%send_buf(pack_size, max(n_send, 1)))
-        if (allocated(halo%recv_buf)) then
-            if (size(halo%recv_buf, 2) < n_recv) deallocate(halo%recv_buf)
-        end if
-        if (.not. allocated(halo%recv_buf)) allocate(halo%recv_buf(pack_size, max(n_recv, 1)))
-        do k = 1, n_send
-            call particles_pack(p, halo%send_index(k), halo%send_buf(:, k))
-            halo%send_buf(1:3, k) = halo%send_buf(1:3, k) + halo%send_shift(:, k)
-            halo%send_buf(17:19, k) = halo%send_buf(17:19, k) + halo%send_shift(:, k)
-        end do
+        halo%mask = mask
+        call pack_widths(p, mask, halo%n_real, halo%n_int)
+        call ensure_buffer(halo%send_buf, halo%n_real, n_send)
+        call ensure_buffer(halo%recv_buf, halo%n_real, n_recv)
+        call ensure_int_buffer(halo%send_ibuf, halo%n_int, n_send)
+        call ensure_int_buffer(halo%recv_ibuf, halo%n_int, n_recv)
+        call particles_pack(p, mask, halo%send_index, n_send, halo%send_buf, halo%send_ibuf, &
+            halo%send_shift)
         halo%n_requests = 0
         do q = 1, halo%n_peers
             if (halo%recv_count(q) == 0) cycle
             peer = halo%peer_rank(q)
-            halo%n_requests = halo%n_requests + 1
-            call MPI_Irecv(halo%recv_buf(1, halo%recv_offset(q) + 1), &
-                pack_size * halo%recv_count(q), mpi_wp, peer, tag_data, env%comm, &
-                halo%requests(halo%n_requests), ierr)
-            call check_mpi(ierr, 'halo data irecv')
+            if (halo%n_real > 0) then
+                halo%n_requests = halo%n_requests + 1
+                call MPI_Irecv(halo%recv_buf(1, halo%recv_offset(q) + 1), &
+                    halo%n_real * halo%recv_count(q), mpi_wp, peer, tag_data, env%comm, &
+                    halo%requests(halo%n_requests), ierr)
+                call check_mpi(ierr, 'halo data irecv')
+            end if
+            if (halo%n_int > 0) then
+                halo%n_requests = halo%n_requests + 1
+                call MPI_Irecv(halo%recv_ibuf(1, halo%recv_offset(q) + 1), &
+                    halo%n_int * halo%recv_count(q), MPI_INTEGER8, peer, tag_ints, env%comm, &
+                    halo%requests(halo%n_requests), ierr)
+                call check_mpi(ierr, 'halo integers irecv')
+            end if
         end do
         do q = 1, halo%n_peers
             if (halo%send_count(q) == 0) cycle
             peer = halo%peer_rank(q)
-            halo%n_requests = halo%n_requests + 1
-            call MPI_Isend(halo%send_buf(1, halo%send_offset(q) + 1), &
-                pack_size * halo%send_count(q), mpi_wp, peer, tag_data, env%comm, &
-                halo%requests(halo%n_requests), ierr)
-            call check_mpi(ierr, 'halo data isend')
+            if (halo%n_real > 0) then
+                halo%n_requests = halo%n_requests + 1
+                call MPI_Isend(halo%send_buf(1, halo%send_offset(q) + 1), &
+                    halo%n_real * halo%send_count(q), mpi_wp, peer, tag_data, env%comm, &
+                    halo%requests(halo%n_requests), ierr)
+                call check_mpi(ierr, 'halo data isend')
+            end if
+            if (halo%n_int > 0) then
+                halo%n_requests = halo%n_requests + 1
+                call MPI_Isend(halo%send_ibuf(1, halo%send_offset(q) + 1), &
+                    halo%n_int * halo%send_count(q), MPI_INTEGER8, peer, tag_ints, env%comm, &
+                    halo%requests(halo%n_requests), ierr)
+                call check_mpi(ierr, 'halo integers isend')
+            end if
         end do
     end subroutine post_data
+
+    !> A (rows, columns) buffer with at least these sizes (reused while large enough).
+    subroutine ensure_buffer(buffer, rows, columns)
+        real(wp), allocatable, intent(inout) :: buffer(:, :)
+        integer, intent(in) :: rows, columns
+        if (allocated(buffer)) then
+            if (size(buffer, 1) == max(rows, 1) .and. size(buffer, 2) >= columns) return
+            deallocate(buffer)
+        end if
+        allocate(buffer(max(rows, 1), max(columns, 1)))
+    end subroutine ensure_buffer
+
+    subroutine ensure_int_buffer(buffer, rows, columns)
+        integer(i8), allocatable, intent(inout) :: buffer(:, :)
+        integer, intent(in) :: rows, columns
+        if (allocated(buffer)) then
+            if (size(buffer, 1) == max(rows, 1) .and. size(buffer, 2) >= columns) return
+            deallocate(buffer)
+        end if
+        allocate(buffer(max(rows, 1), max(columns, 1)))
+    end subroutine ensure_int_buffer
 
     !> Wait for the data and store the ghosts after the owned particles.
     subroutine halo_build_finish(halo, p)
@@ -244,13 +283,12 @@ contains
     subroutine wait_and_unpack(halo, p)
         type(halo_t), intent(inout) :: halo
         type(particles_t), intent(inout) :: p
-        integer :: k, ierr
+        integer :: ierr
         call MPI_Waitall(halo%n_requests, halo%requests, MPI_STATUSES_IGNORE, ierr)
         call check_mpi(ierr, 'halo data wait')
         halo%n_requests = 0
-        do k = 1, halo%recv_offset(halo%n_peers + 1)
-            call particles_unpack(p, p%n_owned + k, halo%recv_buf(:, k))
-        end do
+        call particles_unpack(p, halo%mask, p%n_owned + 1, halo%recv_offset(halo%n_peers + 1), &
+            halo%recv_buf, halo%recv_ibuf)
     end subroutine wait_and_unpack
 
     subroutine halo_build(halo, domain, env, p)
@@ -262,14 +300,16 @@ contains
         call halo_build_finish(halo, p)
     end subroutine halo_build
 
-    !> Same ghosts, current values: used within a step, when particles have moved much less
-    !> than the skin. Virtual copies beyond the ghosts (mirrors) are dropped.
-    subroutine halo_refresh_start(halo, env, p)
+    !> Same ghosts, current values of the fields of one stage (mask: HALO_MOVE, HALO_DENSITY,
+    !> ...; see sph_particles): used within a step, when particles have moved much less than
+    !> the skin. Virtual copies beyond the ghosts (mirrors) are dropped.
+    subroutine halo_refresh_start(halo, env, p, mask)
         type(halo_t), intent(inout) :: halo
         type(mpi_env_t), intent(in) :: env
         type(particles_t), intent(inout) :: p
+        integer, intent(in) :: mask
         p%n_total = p%n_owned + p%n_ghost
-        call post_data(halo, env, p)
+        call post_data(halo, env, p, mask)
     end subroutine halo_refresh_start
 
     subroutine halo_refresh_finish(halo, p)
@@ -278,11 +318,12 @@ contains
         call wait_and_unpack(halo, p)
     end subroutine halo_refresh_finish
 
-    subroutine halo_refresh(halo, env, p)
+    subroutine halo_refresh(halo, env, p, mask)
         type(halo_t), intent(inout) :: halo
         type(mpi_env_t), intent(in) :: env
         type(particles_t), intent(inout) :: p
-        call halo_refresh_start(halo, env, p)
+        integer, intent(in) :: mask
+        call halo_refresh_start(halo, env, p, mask)
         call halo_refresh_finish(halo, p)
     end subroutine halo_refresh
 end module sph_halo

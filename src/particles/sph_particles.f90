@@ -2,21 +2,61 @@
 !> followed by ghost copies (periodic images and other ranks' particles within reach, made by
 !> the halo exchange) in n_owned+1:n_owned+n_ghost, followed by per-stage virtual copies (wall
 !> mirror images) up to n_total. Physics loops update owned particles only and read all.
+!>
+!> The field table. Every per-particle field is a named component of particles_t (the
+!> physics reads it by name) and one line of `particles_visit`, which says its name in files,
+!> its width and where it travels (FIELD_* flags below). Everything generic is driven by that
+!> one list: allocation, growth, permutation, copying, packing any subset for the halo and
+!> migration (reals as reals, integers as integers), snapshot/checkpoint writing and reading
+!> (sph_snapshot). Adding a field is a component here and one line in particles_visit; a
+!> module may also add a real field at run time (particles_add_field), which then takes part in
+!> all of the above like the built-in ones.
 module sph_particles
     use sph_kinds, only: wp, i8
     implicit none
     private
     public :: particles_t, particles_init, particles_free, particles_reserve
-    public :: particles_copy, particles_pack, particles_unpack, particles_permute_owned
-    public :: KIND_FLUID, KIND_WALL, KIND_VIRTUAL, KIND_MIRROR, pack_size
+    public :: particles_copy, particles_gather, particles_visit, particles_add_field
+    public :: particles_pack, particles_unpack, pack_widths, field_list
+    public :: field_info_t, field_op_t
+    public :: KIND_FLUID, KIND_WALL, KIND_VIRTUAL, KIND_MIRROR
+    public :: FIELD_REAL, FIELD_INT8, FIELD_INT
+    public :: FIELD_SNAPSHOT, FIELD_CHECKPOINT, FIELD_SHIFTED
+    public :: HALO_GHOST, HALO_MOVE, HALO_DENSITY, HALO_STRAIN, ALL_FIELDS
 
     integer, parameter :: KIND_FLUID = 0    !< moves with the flow
     integer, parameter :: KIND_WALL = 1     !< fixed wall particle, carries its wall's velocity
     integer, parameter :: KIND_VIRTUAL = 2  !< remeshing: particle of the other resolution level
     integer, parameter :: KIND_MIRROR = 3   !< type-2 mirror image, rebuilt each stage, never output
 
-    !> Values per particle in a pack buffer (see particles_pack for the layout).
-    integer, parameter :: pack_size = 40
+    ! storage types of a field
+    integer, parameter :: FIELD_REAL = 1    !< real(wp)
+    integer, parameter :: FIELD_INT8 = 2    !< integer(i8) (global ids)
+    integer, parameter :: FIELD_INT = 3     !< default integer, int32 in files
+
+    ! where a field goes (bit flags)
+    integer, parameter :: FIELD_SNAPSHOT = 1     !< a dataset of every snapshot (and checkpoint)
+    integer, parameter :: FIELD_CHECKPOINT = 2   !< a dataset of checkpoints only
+    integer, parameter :: FIELD_SHIFTED = 4      !< a position: periodic images are shifted
+    integer, parameter :: HALO_GHOST = 8         !< what a ghost needs: sent when ghosts are made
+    integer, parameter :: HALO_MOVE = 16         !< refreshed after particles moved within a step
+    integer, parameter :: HALO_DENSITY = 32      !< refreshed after a summation density
+    integer, parameter :: HALO_STRAIN = 64       !< refreshed after the strain rate
+    integer, parameter :: ALL_FIELDS = -1        !< every field (migration, permutation)
+
+    !> One field as the table describes it.
+    type :: field_info_t
+        character(len=24) :: name = ''   !< dataset name in snapshot and checkpoint files
+        integer :: width = 1             !< values per particle
+        integer :: flags = 0             !< FIELD_* and HALO_* bits
+        integer :: storage = FIELD_REAL  !< FIELD_REAL, FIELD_INT8 or FIELD_INT
+    end type field_info_t
+
+    !> A real field added at run time.
+    type :: extra_field_t
+        type(field_info_t) :: info
+        real(wp), allocatable :: a(:, :)
+    end type extra_field_t
 
     type :: particles_t
         integer :: n_owned = 0
@@ -50,162 +90,459 @@ module sph_particles
         integer(i8), allocatable :: id(:)       !< global id, survives migration and remeshing
         integer, allocatable :: kind(:)         !< KIND_*
         integer, allocatable :: level(:)        !< resolution level, 0 = coarsest
+        ! real fields added at run time (particles_add_field): extra(k)%a(width, capacity)
+        type(extra_field_t), allocatable :: extra(:)
     end type particles_t
 
+    !> An operation applied to every field in turn by particles_visit. Rank-1 fields come as
+    !> real1/int8/int4, vector fields as real2 (width, capacity).
+    type, abstract :: field_op_t
+    contains
+        procedure(op_real1), deferred :: real1
+        procedure(op_real2), deferred :: real2
+        procedure(op_int8), deferred :: int8
+        procedure(op_int4), deferred :: int4
+    end type field_op_t
+
+    abstract interface
+        subroutine op_real1(op, a, info)
+            import :: field_op_t, wp, field_info_t
+            class(field_op_t), intent(inout) :: op
+            real(wp), allocatable, intent(inout) :: a(:)
+            type(field_info_t), intent(in) :: info
+        end subroutine op_real1
+        subroutine op_real2(op, a, info)
+            import :: field_op_t, wp, field_info_t
+            class(field_op_t), intent(inout) :: op
+            real(wp), allocatable, intent(inout) :: a(:, :)
+            type(field_info_t), intent(in) :: info
+        end subroutine op_real2
+        subroutine op_int8(op, a, info)
+            import :: field_op_t, i8, field_info_t
+            class(field_op_t), intent(inout) :: op
+            integer(i8), allocatable, intent(inout) :: a(:)
+            type(field_info_t), intent(in) :: info
+        end subroutine op_int8
+        subroutine op_int4(op, a, info)
+            import :: field_op_t, field_info_t
+            class(field_op_t), intent(inout) :: op
+            integer, allocatable, intent(inout) :: a(:)
+            type(field_info_t), intent(in) :: info
+        end subroutine op_int4
+    end interface
+
+    ! ---- the generic operations, each a field_op_t ----
+
+    !> Allocate (or grow, keeping the first `keep` particles) to `capacity`; new slots zero.
+    type, extends(field_op_t) :: resize_op_t
+        integer :: capacity = 0, keep = 0
+    contains
+        procedure :: real1 => resize_real1, real2 => resize_real2
+        procedure :: int8 => resize_int8, int4 => resize_int4
+    end type resize_op_t
+
+    !> a(:, dst(k)) = a(:, src(k)), k = 1..n, for every field (right-hand side read first).
+    type, extends(field_op_t) :: copy_op_t
+        integer, allocatable :: src(:), dst(:)
+    contains
+        procedure :: real1 => copy_real1, real2 => copy_real2
+        procedure :: int8 => copy_int8, int4 => copy_int4
+    end type copy_op_t
+
+    !> Pack (or unpack) the selected fields of particles index(1:n) into columns of rbuf
+    !> (reals) and ibuf (integers as int64); `row_r`/`row_i` advance through the fields.
+    type, extends(field_op_t) :: pack_op_t
+        integer :: mask = ALL_FIELDS
+        logical :: unpack = .false.
+        integer :: n = 0, first = 0        !< unpack: slots first .. first + n - 1
+        integer :: row_r = 0, row_i = 0
+        integer, allocatable :: index(:)   !< pack: the particles
+        real(wp), allocatable :: shift(:, :)   !< pack: added to FIELD_SHIFTED fields (3, n)
+        real(wp), pointer, contiguous :: rbuf(:, :) => null()
+        integer(i8), pointer, contiguous :: ibuf(:, :) => null()
+    contains
+        procedure :: real1 => pack_real1, real2 => pack_real2
+        procedure :: int8 => pack_int8, int4 => pack_int4
+    end type pack_op_t
+
+    !> Records the table: every field's description, in visiting order.
+    type, extends(field_op_t) :: list_op_t
+        type(field_info_t), allocatable :: fields(:)
+    contains
+        procedure :: real1 => list_real1, real2 => list_real2
+        procedure :: int8 => list_int8, int4 => list_int4
+    end type list_op_t
+
 contains
+
+    !> The field table: one line per field (component, file name, width, where it travels).
+    subroutine particles_visit(p, op)
+        type(particles_t), intent(inout) :: p
+        class(field_op_t), intent(inout) :: op
+        integer, parameter :: snap = FIELD_SNAPSHOT, ckpt = FIELD_CHECKPOINT
+        integer, parameter :: ghost = HALO_GHOST, move = HALO_MOVE
+        integer :: k
+        call op%real2(p%x, field_info_t('position', 3, snap + FIELD_SHIFTED + ghost + move))
+        call op%real2(p%v, field_info_t('velocity', 3, snap + ghost + move))
+        call op%real1(p%rho, field_info_t('density', 1, snap + ghost + move + HALO_DENSITY))
+        call op%real1(p%p, field_info_t('pressure', 1, snap + ghost))
+        call op%real1(p%m, field_info_t('mass', 1, snap + ghost))
+        call op%real1(p%h, field_info_t('smoothing_length', 1, snap + ghost))
+        call op%real1(p%e, field_info_t('energy', 1, snap + ghost + move))
+        call op%real2(p%dvdt, field_info_t('acceleration', 3, 0))
+        call op%real1(p%drhodt, field_info_t('density_rate', 1, 0))
+        call op%real1(p%dedt, field_info_t('energy_rate', 1, 0))
+        call op%real2(p%x_old, field_info_t('position_old', 3, FIELD_SHIFTED))
+        call op%real2(p%v_old, field_info_t('velocity_old', 3, 0))
+        call op%real1(p%rho_old, field_info_t('density_old', 1, 0))
+        call op%real1(p%e_old, field_info_t('energy_old', 1, 0))
+        call op%real2(p%strain, field_info_t('strain_rate', 6, ghost + HALO_STRAIN))
+        call op%real2(p%wall_normal, field_info_t('wall_normal', 3, ckpt + ghost))
+        call op%real1(p%wall_distance, field_info_t('wall_distance', 1, ckpt + ghost))
+        call op%int8(p%id, field_info_t('id', 1, snap + ghost, FIELD_INT8))
+        call op%int4(p%kind, field_info_t('kind', 1, snap + ghost, FIELD_INT))
+        call op%int4(p%level, field_info_t('level', 1, snap + ghost, FIELD_INT))
+        if (.not. allocated(p%extra)) return
+        do k = 1, size(p%extra)
+            call op%real2(p%extra(k)%a, p%extra(k)%info)
+        end do
+    end subroutine particles_visit
+
+    !> Add a real field of `width` values per particle, travelling as `flags` say (FIELD_*,
+    !> HALO_*), and return its index k: the values are p%extra(k)%a(1:width, i), zero for
+    !> every particle at first. Adding a name that exists returns the existing field (a set-up
+    !> may run again, e.g. on restart); its width and flags must agree.
+    integer function particles_add_field(p, name, width, flags) result(k)
+        type(particles_t), intent(inout) :: p
+        character(len=*), intent(in) :: name
+        integer, intent(in) :: width, flags
+        type(extra_field_t), allocatable :: grown(:)
+        integer :: j
+        if (.not. allocated(p%extra)) allocate(p%extra(0))
+        do k = 1, size(p%extra)
+            if (trim(p%extra(k)%info%name) /= name) cycle
+            if (p%extra(k)%info%width /= width .or. p%extra(k)%info%flags /= flags) &
+                error stop 'particles_add_field: a field of that name exists with another shape'
+            return
+        end do
+        allocate(grown(size(p%extra) + 1))
+        do j = 1, size(p%extra)
+            call move_alloc(p%extra(j)%a, grown(j)%a)
+            grown(j)%info = p%extra(j)%info
+        end do
+        k = size(grown)
+        grown(k)%info = field_info_t(name, width, flags, FIELD_REAL)
+        allocate(grown(k)%a(width, max(p%capacity, 1)))
+        grown(k)%a = 0.0_wp
+        call move_alloc(grown, p%extra)
+    end function particles_add_field
+
+    !> Is a field with these flags selected by mask?
+    pure logical function selected(flags, mask)
+        integer, intent(in) :: flags, mask
+        selected = mask == ALL_FIELDS .or. iand(flags, mask) /= 0
+    end function selected
+
+    !> The table itself: every field's description, in the order of particles_visit (with the
+    !> fields p has added at run time, when p is given).
+    function field_list(p) result(fields)
+        type(particles_t), intent(in), optional :: p
+        type(field_info_t), allocatable :: fields(:)
+        type(particles_t) :: shape_only
+        type(list_op_t) :: op
+        integer :: k
+        allocate(op%fields(0))
+        if (present(p)) then
+            if (allocated(p%extra)) then
+                allocate(shape_only%extra(size(p%extra)))
+                do k = 1, size(p%extra)
+                    shape_only%extra(k)%info = p%extra(k)%info
+                end do
+            end if
+        end if
+        call particles_visit(shape_only, op)
+        call move_alloc(op%fields, fields)
+    end function field_list
+
+    !> Values per particle that a pack of p's fields with this mask produces: reals, integers.
+    subroutine pack_widths(p, mask, n_real, n_int)
+        type(particles_t), intent(in) :: p
+        integer, intent(in) :: mask
+        integer, intent(out) :: n_real, n_int
+        type(field_info_t), allocatable :: fields(:)
+        integer :: k
+        fields = field_list(p)
+        n_real = 0
+        n_int = 0
+        do k = 1, size(fields)
+            if (.not. selected(fields(k)%flags, mask)) cycle
+            if (fields(k)%storage == FIELD_REAL) then
+                n_real = n_real + fields(k)%width
+            else
+                n_int = n_int + fields(k)%width
+            end if
+        end do
+    end subroutine pack_widths
 
     subroutine particles_init(p, capacity, dim)
         type(particles_t), intent(out) :: p
         integer, intent(in) :: capacity, dim
+        type(resize_op_t) :: op
         p%dim = dim
-        call allocate_arrays(p, max(capacity, 16))
+        op%capacity = max(capacity, 16)
+        op%keep = 0
+        call particles_visit(p, op)
+        p%capacity = op%capacity
     end subroutine particles_init
-
-    subroutine allocate_arrays(p, n)
-        type(particles_t), intent(inout) :: p
-        integer, intent(in) :: n
-        p%capacity = n
-        allocate(p%x(3, n), p%v(3, n), p%rho(n), p%p(n), p%m(n), p%h(n), p%e(n))
-        allocate(p%dvdt(3, n), p%drhodt(n), p%dedt(n))
-        allocate(p%x_old(3, n), p%v_old(3, n), p%rho_old(n), p%e_old(n))
-        allocate(p%strain(6, n), p%wall_normal(3, n), p%wall_distance(n))
-        allocate(p%id(n), p%kind(n), p%level(n))
-        ! defined values everywhere: unused slots must not trip FP traps when copied
-        p%x = 0; p%v = 0; p%rho = 0; p%p = 0; p%m = 0; p%h = 0; p%e = 0
-        p%dvdt = 0; p%drhodt = 0; p%dedt = 0
-        p%x_old = 0; p%v_old = 0; p%rho_old = 0; p%e_old = 0
-        p%strain = 0; p%wall_normal = 0; p%wall_distance = 0
-        p%id = 0; p%kind = KIND_FLUID; p%level = 0
-    end subroutine allocate_arrays
 
     subroutine particles_free(p)
         type(particles_t), intent(inout) :: p
-        if (allocated(p%x)) then
-            deallocate(p%x, p%v, p%rho, p%p, p%m, p%h, p%e, p%dvdt, p%drhodt, p%dedt)
-            deallocate(p%x_old, p%v_old, p%rho_old, p%e_old, p%strain)
-            deallocate(p%wall_normal, p%wall_distance, p%id, p%kind, p%level)
-        end if
-        p%n_owned = 0; p%n_ghost = 0; p%n_total = 0; p%capacity = 0
+        type(particles_t) :: empty
+        empty%dim = p%dim
+        p = empty
     end subroutine particles_free
 
     !> Make room for at least n particles, keeping the first n_total (grows by 1.5x).
     subroutine particles_reserve(p, n)
         type(particles_t), intent(inout) :: p
         integer, intent(in) :: n
-        type(particles_t) :: bigger
-        integer :: k
+        type(resize_op_t) :: op
         if (n <= p%capacity) return
-        bigger%dim = p%dim
-        call allocate_arrays(bigger, max(n, p%capacity + p%capacity / 2, 16))
-        do k = 1, p%n_total
-            call copy_between(p, k, bigger, k)
-        end do
-        bigger%n_owned = p%n_owned; bigger%n_ghost = p%n_ghost; bigger%n_total = p%n_total
-        call move_alloc(bigger%x, p%x); call move_alloc(bigger%v, p%v)
-        call move_alloc(bigger%rho, p%rho); call move_alloc(bigger%p, p%p)
-        call move_alloc(bigger%m, p%m); call move_alloc(bigger%h, p%h)
-        call move_alloc(bigger%e, p%e); call move_alloc(bigger%dvdt, p%dvdt)
-        call move_alloc(bigger%drhodt, p%drhodt); call move_alloc(bigger%dedt, p%dedt)
-        call move_alloc(bigger%x_old, p%x_old); call move_alloc(bigger%v_old, p%v_old)
-        call move_alloc(bigger%rho_old, p%rho_old); call move_alloc(bigger%e_old, p%e_old)
-        call move_alloc(bigger%strain, p%strain)
-        call move_alloc(bigger%wall_normal, p%wall_normal)
-        call move_alloc(bigger%wall_distance, p%wall_distance)
-        call move_alloc(bigger%id, p%id); call move_alloc(bigger%kind, p%kind)
-        call move_alloc(bigger%level, p%level)
-        p%capacity = bigger%capacity
+        op%capacity = max(n, p%capacity + p%capacity / 2, 16)
+        op%keep = min(p%n_total, p%capacity)
+        call particles_visit(p, op)
+        p%capacity = op%capacity
     end subroutine particles_reserve
 
-    !> Copy particle `from` onto slot `to` within one set.
+    !> Copy particle `from` onto slot `to` within one set (every field).
     subroutine particles_copy(p, from, to)
         type(particles_t), intent(inout) :: p
         integer, intent(in) :: from, to
-        real(wp) :: buffer(pack_size)
+        type(copy_op_t) :: op
         if (from == to) return
-        call particles_pack(p, from, buffer)
-        call particles_unpack(p, to, buffer)
+        op%src = [from]
+        op%dst = [to]
+        call particles_visit(p, op)
     end subroutine particles_copy
 
-    subroutine copy_between(a, i, b, j)
-        type(particles_t), intent(in) :: a
-        integer, intent(in) :: i, j
-        type(particles_t), intent(inout) :: b
-        real(wp) :: buffer(pack_size)
-        call particles_pack(a, i, buffer)
-        call particles_unpack(b, j, buffer)
-    end subroutine copy_between
+    !> Slot k takes particle src(k), k = 1..size(src), every field (a permutation of the owned
+    !> particles, or compaction). The counts are the caller's to set.
+    subroutine particles_gather(p, src)
+        type(particles_t), intent(inout) :: p
+        integer, intent(in) :: src(:)
+        type(copy_op_t) :: op
+        integer :: k
+        op%src = src
+        op%dst = [(k, k = 1, size(src))]
+        call particles_visit(p, op)
+    end subroutine particles_gather
 
-    !> Every field of particle i into a flat real buffer. Integers travel as their bit patterns
-    !> (transfer), so ids and kinds arrive exactly.
-    pure subroutine particles_pack(p, i, buffer)
-        type(particles_t), intent(in) :: p
-        integer, intent(in) :: i
-        real(wp), intent(out) :: buffer(pack_size)
-        buffer(1:3) = p%x(:, i)
-        buffer(4:6) = p%v(:, i)
-        buffer(7) = p%rho(i)
-        buffer(8) = p%p(i)
-        buffer(9) = p%m(i)
-        buffer(10) = p%h(i)
-        buffer(11) = p%e(i)
-        buffer(12:14) = p%dvdt(:, i)
-        buffer(15) = p%drhodt(i)
-        buffer(16) = p%dedt(i)
-        buffer(17:19) = p%x_old(:, i)
-        buffer(20:22) = p%v_old(:, i)
-        buffer(23) = p%rho_old(i)
-        buffer(24) = p%e_old(i)
-        buffer(25:30) = p%strain(:, i)
-        buffer(31:33) = p%wall_normal(:, i)
-        buffer(34) = p%wall_distance(i)
-        buffer(35) = transfer(p%id(i), 0.0_wp)
-        buffer(36) = real(p%kind(i), wp)
-        buffer(37) = real(p%level(i), wp)
-        buffer(38:40) = 0.0_wp
+    !> Pack the fields selected by mask of particles index(1:n) into rbuf(:, 1:n) (reals) and
+    !> ibuf(:, 1:n) (integers). shift(:, k), when given, is added to the positions.
+    subroutine particles_pack(p, mask, index, n, rbuf, ibuf, shift)
+        type(particles_t), intent(inout) :: p
+        integer, intent(in) :: mask, n
+        integer, intent(in) :: index(:)
+        real(wp), intent(inout), target, contiguous :: rbuf(:, :)
+        integer(i8), intent(inout), target, contiguous :: ibuf(:, :)
+        real(wp), intent(in), optional :: shift(:, :)
+        type(pack_op_t) :: op
+        op%mask = mask
+        op%n = n
+        op%index = index(1:n)
+        if (present(shift)) op%shift = shift(:, 1:n)
+        op%rbuf => rbuf
+        op%ibuf => ibuf
+        call particles_visit(p, op)
     end subroutine particles_pack
 
-    pure subroutine particles_unpack(p, i, buffer)
+    !> The inverse of particles_pack: columns 1..n become slots first..first+n-1.
+    subroutine particles_unpack(p, mask, first, n, rbuf, ibuf)
         type(particles_t), intent(inout) :: p
-        integer, intent(in) :: i
-        real(wp), intent(in) :: buffer(pack_size)
-        p%x(:, i) = buffer(1:3)
-        p%v(:, i) = buffer(4:6)
-        p%rho(i) = buffer(7)
-        p%p(i) = buffer(8)
-        p%m(i) = buffer(9)
-        p%h(i) = buffer(10)
-        p%e(i) = buffer(11)
-        p%dvdt(:, i) = buffer(12:14)
-        p%drhodt(i) = buffer(15)
-        p%dedt(i) = buffer(16)
-        p%x_old(:, i) = buffer(17:19)
-        p%v_old(:, i) = buffer(20:22)
-        p%rho_old(i) = buffer(23)
-        p%e_old(i) = buffer(24)
-        p%strain(:, i) = buffer(25:30)
-        p%wall_normal(:, i) = buffer(31:33)
-        p%wall_distance(i) = buffer(34)
-        p%id(i) = transfer(buffer(35), 0_i8)
-        p%kind(i) = nint(buffer(36))
-        p%level(i) = nint(buffer(37))
+        integer, intent(in) :: mask, first, n
+        real(wp), intent(inout), target, contiguous :: rbuf(:, :)
+        integer(i8), intent(inout), target, contiguous :: ibuf(:, :)
+        type(pack_op_t) :: op
+        op%mask = mask
+        op%unpack = .true.
+        op%first = first
+        op%n = n
+        op%rbuf => rbuf
+        op%ibuf => ibuf
+        call particles_visit(p, op)
     end subroutine particles_unpack
 
-    !> Reorder the owned particles: new slot k takes old particle perm(k). Ghosts are dropped
-    !> (they are rebuilt after every reorder).
-    subroutine particles_permute_owned(p, perm)
-        type(particles_t), intent(inout) :: p
-        integer, intent(in) :: perm(:)
-        real(wp), allocatable :: buffer(:, :)
-        integer :: k, n
-        n = p%n_owned
-        allocate(buffer(pack_size, n))
-        do k = 1, n
-            call particles_pack(p, perm(k), buffer(:, k))
-        end do
-        do k = 1, n
-            call particles_unpack(p, k, buffer(:, k))
-        end do
-        p%n_ghost = 0
-        p%n_total = n
-    end subroutine particles_permute_owned
+    ! ---- resize ----
+
+    subroutine resize_real1(op, a, info)
+        class(resize_op_t), intent(inout) :: op
+        real(wp), allocatable, intent(inout) :: a(:)
+        type(field_info_t), intent(in) :: info
+        real(wp), allocatable :: b(:)
+        allocate(b(op%capacity))
+        b = 0.0_wp   ! defined values everywhere: unused slots must not trip FP traps
+        if (op%keep > 0) b(1:op%keep) = a(1:op%keep)
+        call move_alloc(b, a)
+    end subroutine resize_real1
+
+    subroutine resize_real2(op, a, info)
+        class(resize_op_t), intent(inout) :: op
+        real(wp), allocatable, intent(inout) :: a(:, :)
+        type(field_info_t), intent(in) :: info
+        real(wp), allocatable :: b(:, :)
+        allocate(b(info%width, op%capacity))
+        b = 0.0_wp
+        if (op%keep > 0) b(:, 1:op%keep) = a(:, 1:op%keep)
+        call move_alloc(b, a)
+    end subroutine resize_real2
+
+    subroutine resize_int8(op, a, info)
+        class(resize_op_t), intent(inout) :: op
+        integer(i8), allocatable, intent(inout) :: a(:)
+        type(field_info_t), intent(in) :: info
+        integer(i8), allocatable :: b(:)
+        allocate(b(op%capacity))
+        b = 0
+        if (op%keep > 0) b(1:op%keep) = a(1:op%keep)
+        call move_alloc(b, a)
+    end subroutine resize_int8
+
+    subroutine resize_int4(op, a, info)
+        class(resize_op_t), intent(inout) :: op
+        integer, allocatable, intent(inout) :: a(:)
+        type(field_info_t), intent(in) :: info
+        integer, allocatable :: b(:)
+        allocate(b(op%capacity))
+        b = 0
+        if (op%keep > 0) b(1:op%keep) = a(1:op%keep)
+        call move_alloc(b, a)
+    end subroutine resize_int4
+
+    ! ---- copy ----
+
+    subroutine copy_real1(op, a, info)
+        class(copy_op_t), intent(inout) :: op
+        real(wp), allocatable, intent(inout) :: a(:)
+        type(field_info_t), intent(in) :: info
+        a(op%dst) = a(op%src)
+    end subroutine copy_real1
+
+    subroutine copy_real2(op, a, info)
+        class(copy_op_t), intent(inout) :: op
+        real(wp), allocatable, intent(inout) :: a(:, :)
+        type(field_info_t), intent(in) :: info
+        a(:, op%dst) = a(:, op%src)
+    end subroutine copy_real2
+
+    subroutine copy_int8(op, a, info)
+        class(copy_op_t), intent(inout) :: op
+        integer(i8), allocatable, intent(inout) :: a(:)
+        type(field_info_t), intent(in) :: info
+        a(op%dst) = a(op%src)
+    end subroutine copy_int8
+
+    subroutine copy_int4(op, a, info)
+        class(copy_op_t), intent(inout) :: op
+        integer, allocatable, intent(inout) :: a(:)
+        type(field_info_t), intent(in) :: info
+        a(op%dst) = a(op%src)
+    end subroutine copy_int4
+
+    ! ---- pack / unpack ----
+
+    subroutine pack_real1(op, a, info)
+        class(pack_op_t), intent(inout) :: op
+        real(wp), allocatable, intent(inout) :: a(:)
+        type(field_info_t), intent(in) :: info
+        integer :: r
+        if (.not. selected(info%flags, op%mask)) return
+        r = op%row_r + 1
+        if (op%unpack) then
+            a(op%first:op%first + op%n - 1) = op%rbuf(r, 1:op%n)
+        else
+            op%rbuf(r, 1:op%n) = a(op%index)
+        end if
+        op%row_r = r
+    end subroutine pack_real1
+
+    subroutine pack_real2(op, a, info)
+        class(pack_op_t), intent(inout) :: op
+        real(wp), allocatable, intent(inout) :: a(:, :)
+        type(field_info_t), intent(in) :: info
+        integer :: r0, r1, k
+        if (.not. selected(info%flags, op%mask)) return
+        r0 = op%row_r + 1
+        r1 = op%row_r + info%width
+        if (op%unpack) then
+            a(:, op%first:op%first + op%n - 1) = op%rbuf(r0:r1, 1:op%n)
+        else
+            op%rbuf(r0:r1, 1:op%n) = a(:, op%index)
+            if (allocated(op%shift) .and. iand(info%flags, FIELD_SHIFTED) /= 0) then
+                do k = 1, op%n
+                    op%rbuf(r0:r1, k) = op%rbuf(r0:r1, k) + op%shift(:, k)
+                end do
+            end if
+        end if
+        op%row_r = r1
+    end subroutine pack_real2
+
+    subroutine pack_int8(op, a, info)
+        class(pack_op_t), intent(inout) :: op
+        integer(i8), allocatable, intent(inout) :: a(:)
+        type(field_info_t), intent(in) :: info
+        integer :: r
+        if (.not. selected(info%flags, op%mask)) return
+        r = op%row_i + 1
+        if (op%unpack) then
+            a(op%first:op%first + op%n - 1) = op%ibuf(r, 1:op%n)
+        else
+            op%ibuf(r, 1:op%n) = a(op%index)
+        end if
+        op%row_i = r
+    end subroutine pack_int8
+
+    subroutine pack_int4(op, a, info)
+        class(pack_op_t), intent(inout) :: op
+        integer, allocatable, intent(inout) :: a(:)
+        type(field_info_t), intent(in) :: info
+        integer :: r
+        if (.not. selected(info%flags, op%mask)) return
+        r = op%row_i + 1
+        if (op%unpack) then
+            a(op%first:op%first + op%n - 1) = int(op%ibuf(r, 1:op%n))
+        else
+            op%ibuf(r, 1:op%n) = int(a(op%index), i8)
+        end if
+        op%row_i = r
+    end subroutine pack_int4
+
+    ! ---- list ----
+
+    subroutine list_real1(op, a, info)
+        class(list_op_t), intent(inout) :: op
+        real(wp), allocatable, intent(inout) :: a(:)
+        type(field_info_t), intent(in) :: info
+        op%fields = [op%fields, info]
+    end subroutine list_real1
+
+    subroutine list_real2(op, a, info)
+        class(list_op_t), intent(inout) :: op
+        real(wp), allocatable, intent(inout) :: a(:, :)
+        type(field_info_t), intent(in) :: info
+        op%fields = [op%fields, info]
+    end subroutine list_real2
+
+    subroutine list_int8(op, a, info)
+        class(list_op_t), intent(inout) :: op
+        integer(i8), allocatable, intent(inout) :: a(:)
+        type(field_info_t), intent(in) :: info
+        op%fields = [op%fields, info]
+    end subroutine list_int8
+
+    subroutine list_int4(op, a, info)
+        class(list_op_t), intent(inout) :: op
+        integer, allocatable, intent(inout) :: a(:)
+        type(field_info_t), intent(in) :: info
+        op%fields = [op%fields, info]
+    end subroutine list_int4
 end module sph_particles
