@@ -3,10 +3,12 @@
 module test_sph_cases
     use, intrinsic :: iso_fortran_env, only: error_unit
     use sph_kinds, only: wp
-    use sph_config, only: config_t, config_parse, config_validate
+    use sph_config, only: config_t, config_parse, config_validate, axis_is_periodic
+    use sph_domain, only: domain_t, domain_set_tree
     implicit none
     private
-    public :: config_from_text, channel_text, periodic_box_text
+    public :: config_from_text, channel_text, periodic_box_text, closed_box_text
+    public :: single_rank_domain
 
     character(len=*), parameter :: nl = new_line('a')
 
@@ -60,4 +62,52 @@ contains
         if (present(eos)) text = text // ", eos='" // eos // "'"
         text = text // " /" // nl
     end function periodic_box_text
+
+    !> A box of n x n (x n) particles closed by walls on every face, sound speed 1e-2 m/s,
+    !> with an optional &numerics body (e.g. "wall_model='mirror'"), equation of state and
+    !> x velocity of the upper y wall (a lid).
+    function closed_box_text(dim, n, numerics, eos, lid) result(text)
+        integer, intent(in) :: dim, n
+        character(len=*), intent(in), optional :: numerics, eos
+        real(wp), intent(in), optional :: lid
+        character(len=:), allocatable :: text
+        character(len=64) :: dim_text, dx_text, lid_text
+        integer :: f
+        write(dim_text, '(i0)') dim
+        write(dx_text, '(es24.16)') 1.0e-3_wp / n
+        text = "&run case_name='closed' /" // nl // &
+            "&domain dimension=" // trim(dim_text) // ", box_hi=1.0e-3, 1.0e-3, 1.0e-3, dx=" // &
+            trim(dx_text) // ", boundary="
+        do f = 1, 2 * dim
+            text = text // "'wall'"
+            if (f < 2 * dim) text = text // ","
+        end do
+        if (present(lid)) then
+            write(lid_text, '(es24.16)') lid
+            text = text // ", wall_velocity(1,4)=" // trim(lid_text)
+        end if
+        text = text // " /" // nl // "&fluid rho0=1000.0, nu=1.0e-6, sound_speed=1.0e-2"
+        if (present(eos)) text = text // ", eos='" // eos // "'"
+        text = text // " /" // nl
+        if (present(numerics)) text = text // "&numerics " // numerics // " /" // nl
+    end function closed_box_text
+
+    !> The decomposition of a single rank (one leaf owning everything), made without MPI, so
+    !> serial tests can call create_lattice_particles.
+    function single_rank_domain(cfg) result(domain)
+        type(config_t), intent(in) :: cfg
+        type(domain_t) :: domain
+        integer :: axis
+        domain%dim = cfg%dimension
+        domain%nranks = 1
+        domain%rank = 0
+        domain%lo = cfg%box_lo
+        domain%hi = cfg%box_hi
+        domain%length = cfg%box_hi - cfg%box_lo
+        domain%periodic = .false.
+        do axis = 1, cfg%dimension
+            domain%periodic(axis) = axis_is_periodic(cfg, axis)
+        end do
+        call domain_set_tree(domain, [0], [0], [0], [0], [0.0_wp])
+    end function single_rank_domain
 end module test_sph_cases
