@@ -6,7 +6,7 @@
 module sph_halo
     use mpi_f08
     use sph_kinds, only: wp, i8
-    use sph_errors, only: check_mpi
+    use sph_errors, only: check_mpi, fatal_abort
     use sph_mpi_env, only: mpi_env_t, mpi_wp
     use sph_domain, only: domain_t, far
     use sph_particles, only: particles_t, particles_pack, particles_unpack, particles_reserve, &
@@ -15,8 +15,10 @@ module sph_halo
     private
     public :: halo_t, halo_setup, halo_build_start, halo_build_finish, halo_build
     public :: halo_refresh_start, halo_refresh_finish, halo_refresh
+    public :: halo_reverse_sum_start, halo_reverse_sum_finish, halo_reverse_sum
 
     integer, parameter :: tag_count = 101, tag_data = 102, tag_ints = 103
+    integer, parameter :: tag_reverse_sum = 104
 
     type :: halo_t
         real(wp) :: reach = 0.0_wp
@@ -39,6 +41,11 @@ module sph_halo
         integer(i8), allocatable :: send_ibuf(:, :), recv_ibuf(:, :)
         type(MPI_Request), allocatable :: requests(:)
         integer :: n_requests = 0
+        ! in-flight reverse sum (ghost contributions back to their owners): own buffers and
+        ! requests, so a reverse sum and a forward refresh can overlap
+        real(wp), allocatable :: rsum_send_buf(:), rsum_recv_buf(:)  ! rows of width, packed
+        type(MPI_Request), allocatable :: rsum_requests(:)
+        integer :: n_rsum_requests = 0
     end type halo_t
 
 contains
@@ -326,4 +333,101 @@ contains
         call halo_refresh_start(halo, env, p, mask)
         call halo_refresh_finish(halo, p)
     end subroutine halo_refresh
+    !> Reverse halo ("sum back"): start. values(:, n_owned + 1 : n_owned + n_ghost) hold
+    !> contributions accumulated on this rank's ghost slots, in the order the forward
+    !> exchange filled them (per peer, halo%recv_offset segments); each row goes back to the
+    !> rank that owns the particle and is added there into values(:, halo%send_index(k)) by
+    !> halo_reverse_sum_finish. width = size(values, 1) is arbitrary (1 for a scalar, 3 for
+    !> a vector); no periodic shift is applied to the summed values. The ghost rows are
+    !> copied here, so the caller may reuse them until finish, which zeroes them. Columns
+    !> beyond n_owned + n_ghost (mirrors) are not touched. Needs a built halo (halo_build);
+    !> every rank of the communicator must call it. One reverse sum at a time per halo (it
+    !> may overlap a forward refresh). Buffers are kept in halo and only grow.
+    subroutine halo_reverse_sum_start(halo, env, n_owned, values)
+        type(halo_t), intent(inout) :: halo
+        type(mpi_env_t), intent(in) :: env
+        integer, intent(in) :: n_owned
+        real(wp), intent(inout) :: values(:, :)
+        integer :: q, k, width, n_ghost, n_back, peer, ierr
+
+        halo%n_rsum_requests = 0
+        if (halo%n_peers == 0) return
+        width = size(values, 1)
+        n_ghost = halo%recv_offset(halo%n_peers + 1)
+        n_back = halo%send_offset(halo%n_peers + 1)
+        if (size(values, 2) < n_owned + n_ghost) then
+            call fatal_abort('halo_reverse_sum_start', &
+                'values has fewer columns than owned + ghost particles')
+        end if
+        call reserve_values(halo%rsum_send_buf, width * n_ghost)
+        call reserve_values(halo%rsum_recv_buf, width * n_back)
+        if (allocated(halo%rsum_requests)) then
+            if (size(halo%rsum_requests) < 2 * halo%n_peers) deallocate(halo%rsum_requests)
+        end if
+        if (.not. allocated(halo%rsum_requests)) allocate(halo%rsum_requests(2 * halo%n_peers))
+        do k = 1, n_ghost
+            halo%rsum_send_buf((k - 1) * width + 1:k * width) = values(:, n_owned + k)
+        end do
+        ! the forward direction backwards: receive what was sent, send what was received
+        do q = 1, halo%n_peers
+            if (halo%send_count(q) == 0) cycle
+            peer = halo%peer_rank(q)
+            halo%n_rsum_requests = halo%n_rsum_requests + 1
+            call MPI_Irecv(halo%rsum_recv_buf(width * halo%send_offset(q) + 1), &
+                width * halo%send_count(q), mpi_wp, peer, tag_reverse_sum, env%comm, &
+                halo%rsum_requests(halo%n_rsum_requests), ierr)
+            call check_mpi(ierr, 'halo reverse sum irecv')
+        end do
+        do q = 1, halo%n_peers
+            if (halo%recv_count(q) == 0) cycle
+            peer = halo%peer_rank(q)
+            halo%n_rsum_requests = halo%n_rsum_requests + 1
+            call MPI_Isend(halo%rsum_send_buf(width * halo%recv_offset(q) + 1), &
+                width * halo%recv_count(q), mpi_wp, peer, tag_reverse_sum, env%comm, &
+                halo%rsum_requests(halo%n_rsum_requests), ierr)
+            call check_mpi(ierr, 'halo reverse sum isend')
+        end do
+    end subroutine halo_reverse_sum_start
+
+    !> Reverse halo: finish. Waits, adds every returned row into its owned slot
+    !> values(:, halo%send_index(k)) (in send-list order, so the result does not depend on
+    !> message timing) and sets the ghost slots n_owned + 1 : n_owned + n_ghost to zero.
+    subroutine halo_reverse_sum_finish(halo, n_owned, values)
+        type(halo_t), intent(inout) :: halo
+        integer, intent(in) :: n_owned
+        real(wp), intent(inout) :: values(:, :)
+        integer :: k, width, n_ghost, ierr
+
+        if (halo%n_peers == 0) return
+        width = size(values, 1)
+        call MPI_Waitall(halo%n_rsum_requests, halo%rsum_requests, MPI_STATUSES_IGNORE, ierr)
+        call check_mpi(ierr, 'halo reverse sum wait')
+        halo%n_rsum_requests = 0
+        do k = 1, halo%send_offset(halo%n_peers + 1)
+            values(:, halo%send_index(k)) = values(:, halo%send_index(k)) &
+                + halo%rsum_recv_buf((k - 1) * width + 1:k * width)
+        end do
+        n_ghost = halo%recv_offset(halo%n_peers + 1)
+        values(:, n_owned + 1:n_owned + n_ghost) = 0.0_wp
+    end subroutine halo_reverse_sum_finish
+
+    !> Reverse halo sum in one call (start + finish); see halo_reverse_sum_start.
+    subroutine halo_reverse_sum(halo, env, n_owned, values)
+        type(halo_t), intent(inout) :: halo
+        type(mpi_env_t), intent(in) :: env
+        integer, intent(in) :: n_owned
+        real(wp), intent(inout) :: values(:, :)
+        call halo_reverse_sum_start(halo, env, n_owned, values)
+        call halo_reverse_sum_finish(halo, n_owned, values)
+    end subroutine halo_reverse_sum
+
+    !> buffer of at least n (and one) values; reallocated only when it must grow.
+    subroutine reserve_values(buffer, n)
+        real(wp), allocatable, intent(inout) :: buffer(:)
+        integer, intent(in) :: n
+        if (allocated(buffer)) then
+            if (size(buffer) < n) deallocate(buffer)
+        end if
+        if (.not. allocated(buffer)) allocate(buffer(max(n, 1)))
+    end subroutine reserve_values
 end module sph_halo
