@@ -71,7 +71,8 @@ contains
         if (stat /= 0) call fatal_collective('set-up', errmsg)
         do axis = 1, cfg%domain%dimension
             if (cfg%domain%is_periodic(axis) .and. &
-                cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis) < 2.0_wp * sim%phys%kernel%support) then
+                cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis) < &
+                2.0_wp * sim%phys%kernel%support) then
                 call fatal_collective('set-up', &
                     'a periodic box side must be at least twice the ' // &
                     'kernel support radius (&domain box_lo/box_hi, &domain dx, &numerics h_factor)')
@@ -82,7 +83,8 @@ contains
         do axis = 1, cfg%domain%dimension
             periodic(axis) = cfg%domain%is_periodic(axis)
         end do
-        call domain_create(sim%domain, env, cfg%domain%dimension, cfg%domain%box_lo, cfg%domain%box_hi, periodic)
+        call domain_create(sim%domain, env, cfg%domain%dimension, cfg%domain%box_lo, &
+            cfg%domain%box_hi, periodic)
         call particles_init(sim%p, 1024, cfg%domain%dimension)
         ! ghosts reach the support plus a skin that covers any motion within one step
         sim%skin = 2.0_wp * cfg%numerics%cfl * sim%phys%kernel%h
@@ -121,7 +123,8 @@ contains
         call setup_common(sim, env, cfg)
         inquire(file=trim(from) // '/.', exist=is_directory)
         if (is_directory) then
-            call find_latest_checkpoint(env, from, trim(cfg%run%case_name), path, skipped, stat, errmsg)
+            call find_latest_checkpoint(env, from, trim(cfg%run%case_name), path, skipped, stat, &
+                errmsg)
             if (stat /= 0) call fatal_collective('restart', errmsg)
             if (len(skipped) > 0) call log_info('restart: skipped' // skipped)
         else
@@ -173,8 +176,10 @@ contains
         type(mpi_env_t), intent(in) :: env
         character(len=:), allocatable :: path, errmsg
         integer :: stat
-        path = checkpoint_filename(trim(sim%cfg%output%output_dir), trim(sim%cfg%run%case_name), sim%step)
-        call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, sim%cfg%domain%dimension, &
+        path = checkpoint_filename(trim(sim%cfg%output%output_dir), trim(sim%cfg%run%case_name), &
+            sim%step)
+        call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, &
+            sim%cfg%domain%dimension, &
             code_version, sim%input_text, sim%snapshot_index, stat, errmsg)
         if (stat /= 0) call fatal_collective('checkpoint', errmsg)
         if (all(sim%checkpoints /= path)) &
@@ -329,9 +334,11 @@ contains
             exact = 0.0_wp
             select case (trim(sim%cfg%run%analytic))
             case ('poiseuille')
-                exact(1) = poiseuille_velocity(y, t, sim%cfg%fluid%body_force(1), width, sim%cfg%fluid%nu)
+                exact(1) = poiseuille_velocity(y, t, sim%cfg%fluid%body_force(1), width, &
+                    sim%cfg%fluid%nu)
             case ('couette')
-                exact(1) = couette_velocity(y, t, sim%cfg%domain%wall_velocity(1, 4), width, sim%cfg%fluid%nu)
+                exact(1) = couette_velocity(y, t, sim%cfg%domain%wall_velocity(1, 4), width, &
+                    sim%cfg%fluid%nu)
             end select
             sums(1) = sums(1) + sum((sim%p%v(:, i) - exact)**2)
             sums(2) = sums(2) + sum(exact**2)
@@ -359,7 +366,8 @@ contains
 
         if (len(restart_from) > 0) then
             call simulation_restart(sim, env, cfg, restart_from)
-            if (sim%time >= cfg%run%t_end * (1.0_wp - 1.0e-12_wp)) call fatal_collective('restart', &
+            if (sim%time >= cfg%run%t_end * (1.0_wp - 1.0e-12_wp)) &
+                call fatal_collective('restart', &
                 'the checkpoint is already at the end time; raise &run t_end to continue the run')
         else
             call simulation_setup(sim, env, cfg)
@@ -392,7 +400,8 @@ contains
                     call log_info(trim(line) // ')')
                 end if
             end if
-            finished = sim%time >= cfg%run%t_end * (1.0_wp - 1.0e-12_wp) .or. sim%step >= cfg%run%max_steps
+            finished = sim%time >= cfg%run%t_end * (1.0_wp - 1.0e-12_wp) .or. &
+                sim%step >= cfg%run%max_steps
             if (sim%time >= next_output * (1.0_wp - 1.0e-12_wp) .or. finished) then
                 call write_output(sim, env)
                 next_output = next_output_time()
@@ -470,7 +479,8 @@ contains
                 if (cfg%output%output_times(next_listed) > sim%time * (1.0_wp + 1.0e-12_wp)) exit
                 next_listed = next_listed + 1
             end do
-            if (next_listed <= size(cfg%output%output_times)) t = min(t, cfg%output%output_times(next_listed))
+            if (next_listed <= size(cfg%output%output_times)) &
+                t = min(t, cfg%output%output_times(next_listed))
         end function next_output_time
     end subroutine simulation_run
 
@@ -483,7 +493,8 @@ contains
         integer(i8) :: rows
         real(wp) :: error
         character(len=160) :: line
-        path = snapshot_filename(trim(sim%cfg%output%output_dir), trim(sim%cfg%run%case_name), sim%step)
+        path = snapshot_filename(trim(sim%cfg%output%output_dir), trim(sim%cfg%run%case_name), &
+            sim%step)
         call write_snapshot(env, sim%p, path, sim%time, sim%step, sim%cfg%domain%dimension, &
             code_version, sim%input_text, stat, errmsg)
         if (stat /= 0) call fatal_collective('output', errmsg)
@@ -491,7 +502,8 @@ contains
         k = index(path, '/', back=.true.)
         sim%snapshot_index = sim%snapshot_index // xdmf_index_entry(sim%time, sim%step, rows, &
             path(k + 1:))
-        xdmf_path = trim(sim%cfg%output%output_dir) // '/' // trim(sim%cfg%run%case_name) // '.xdmf'
+        xdmf_path = trim(sim%cfg%output%output_dir) // '/' // trim(sim%cfg%run%case_name) // &
+            '.xdmf'
         stat = 0
         if (env%rank == 0) call write_xdmf(xdmf_path, sim%snapshot_index, stat)
         if (global_max(env, int(stat, i8)) /= 0) &

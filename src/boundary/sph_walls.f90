@@ -44,7 +44,8 @@ contains
                 geo%plane(f) = cfg%domain%box_hi(axis)
             end if
             geo%velocity(:, f) = 0.0_wp
-            geo%velocity(1:cfg%domain%dimension, f) = cfg%domain%wall_velocity(1:cfg%domain%dimension, f)
+            geo%velocity(1:cfg%domain%dimension, f) = &
+                cfg%domain%wall_velocity(1:cfg%domain%dimension, f)
         end do
     end function wall_geometry_from_config
 

@@ -28,7 +28,8 @@ contains
 
         n_inside = 1
         do axis = 1, cfg%domain%dimension
-            n_inside(axis) = nint((cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis)) / cfg%domain%dx)
+            n_inside(axis) = nint((cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis)) / &
+                cfg%domain%dx)
         end do
         n_fluid_total = product(int(n_inside, i8))
         mass = cfg%fluid%rho0 * cfg%domain%dx**cfg%domain%dimension
@@ -56,7 +57,8 @@ contains
                 do j = first(2), last(2)
                     do i = first(1), last(1)
                         idx = [i, j, k]
-                        call wall_site(geo, n_inside, idx, cfg%domain%dx, site, face, normal, distance)
+                        call wall_site(geo, n_inside, idx, cfg%domain%dx, site, face, normal, &
+                            distance)
                         if (.not. site) cycle
                         xi = lattice_position(idx)
                         if (domain_owner(domain, xi) /= domain%rank) cycle

@@ -54,7 +54,8 @@ contains
         phys%dx = cfg%domain%dx
         h = cfg%numerics%h_factor
         if (h <= 0.0_wp) h = kernel_default_h_factor(kernel_id_from_name(cfg%numerics%kernel))
-        phys%kernel = kernel_create(kernel_id_from_name(cfg%numerics%kernel), cfg%domain%dimension, h * cfg%domain%dx)
+        phys%kernel = kernel_create(kernel_id_from_name(cfg%numerics%kernel), &
+            cfg%domain%dimension, h * cfg%domain%dx)
         phys%rho0 = cfg%fluid%rho0
         phys%nu = cfg%fluid%nu
         phys%body_force = 0.0_wp
@@ -89,7 +90,8 @@ contains
                 if (cfg%domain%is_wall(2*axis - 1)) length = min(length, &
                     cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis))
             end do
-            if (length == huge(1.0_wp)) length = minval(cfg%domain%box_hi(1:cfg%domain%dimension) - &
+            if (length == huge(1.0_wp)) length = &
+                minval(cfg%domain%box_hi(1:cfg%domain%dimension) - &
                 cfg%domain%box_lo(1:cfg%domain%dimension))
         end if
         force = norm2(phys%body_force)
@@ -98,16 +100,19 @@ contains
             ! fastest wall, or the peak of the Poiseuille profile the body force drives
             velocity = 0.0_wp
             do f = 1, n_faces
-                if (cfg%domain%is_wall(f)) velocity = max(velocity, norm2(cfg%domain%wall_velocity(:, f)))
+                if (cfg%domain%is_wall(f)) &
+                    velocity = max(velocity, norm2(cfg%domain%wall_velocity(:, f)))
             end do
-            if (cfg%fluid%nu > 0.0_wp) velocity = max(velocity, force * length**2 / (8.0_wp * cfg%fluid%nu))
+            if (cfg%fluid%nu > 0.0_wp) &
+                velocity = max(velocity, force * length**2 / (8.0_wp * cfg%fluid%nu))
         end if
         phys%velocity_scale = velocity
         phys%length_scale = length
         if (cfg%fluid%sound_speed > 0.0_wp) then
             phys%c = cfg%fluid%sound_speed
         else
-            phys%c = morris_sound_speed(velocity, cfg%fluid%nu, length, force, cfg%fluid%density_variation)
+            phys%c = morris_sound_speed(velocity, cfg%fluid%nu, length, force, &
+                cfg%fluid%density_variation)
             if (.not. (phys%c > 0.0_wp)) then
                 stat = 1
                 errmsg = '&fluid sound_speed = 0 asks for the automatic (Morris) sound speed, ' // &
