@@ -3,7 +3,7 @@
 !> the stages of a step); the physics modules it calls make no MPI calls.
 module sph_simulation
     use sph_kinds, only: wp, i8
-    use sph_config, only: config_t, config_to_text, axis_is_periodic
+    use sph_config, only: config_t, config_to_text
     use sph_mpi_env, only: mpi_env_t, global_sum, global_max, global_min
     use sph_errors, only: fatal_collective
     use sph_logger, only: log_info
@@ -70,9 +70,10 @@ contains
         allocate(sim%checkpoints(0))
         call physics_from_config(cfg, sim%phys, stat, errmsg)
         if (stat /= 0) call fatal_collective('set-up', errmsg)
-        do axis = 1, cfg%dimension
-            if (axis_is_periodic(cfg, axis) .and. &
-                cfg%box_hi(axis) - cfg%box_lo(axis) < 2.0_wp * sim%phys%kernel%support) then
+        do axis = 1, cfg%domain%dimension
+            if (cfg%domain%is_periodic(axis) .and. &
+                cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis) < &
+                2.0_wp * sim%phys%kernel%support) then
                 call fatal_collective('set-up', &
                     'a periodic box side must be at least twice the ' // &
                     'kernel support radius (&domain box_lo/box_hi, &domain dx, &numerics h_factor)')
@@ -80,13 +81,14 @@ contains
         end do
         sim%geo = wall_geometry_from_config(cfg)
         periodic = .false.
-        do axis = 1, cfg%dimension
-            periodic(axis) = axis_is_periodic(cfg, axis)
+        do axis = 1, cfg%domain%dimension
+            periodic(axis) = cfg%domain%is_periodic(axis)
         end do
-        call domain_create(sim%domain, env, cfg%dimension, cfg%box_lo, cfg%box_hi, periodic)
-        call particles_init(sim%p, 1024, cfg%dimension)
+        call domain_create(sim%domain, env, cfg%domain%dimension, cfg%domain%box_lo, &
+            cfg%domain%box_hi, periodic)
+        call particles_init(sim%p, 1024, cfg%domain%dimension)
         ! ghosts reach the support plus a skin that covers any motion within one step
-        sim%skin = 2.0_wp * cfg%cfl * sim%phys%kernel%h
+        sim%skin = 2.0_wp * cfg%numerics%cfl * sim%phys%kernel%h
         sim%list_skin = 0.1_wp * sim%phys%kernel%h
         sim%time = 0.0_wp
         sim%step = 0
@@ -122,7 +124,8 @@ contains
         call setup_common(sim, env, cfg)
         inquire(file=trim(from) // '/.', exist=is_directory)
         if (is_directory) then
-            call find_latest_checkpoint(env, from, trim(cfg%case_name), path, skipped, stat, errmsg)
+            call find_latest_checkpoint(env, from, trim(cfg%run%case_name), path, skipped, stat, &
+                errmsg)
             if (stat /= 0) call fatal_collective('restart', errmsg)
             if (len(skipped) > 0) call log_info('restart: skipped' // skipped)
         else
@@ -174,13 +177,15 @@ contains
         type(mpi_env_t), intent(in) :: env
         character(len=:), allocatable :: path, errmsg
         integer :: stat
-        path = checkpoint_filename(trim(sim%cfg%output_dir), trim(sim%cfg%case_name), sim%step)
-        call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, sim%cfg%dimension, &
+        path = checkpoint_filename(trim(sim%cfg%output%output_dir), trim(sim%cfg%run%case_name), &
+            sim%step)
+        call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, &
+            sim%cfg%domain%dimension, &
             code_version, sim%input_text, sim%snapshot_index, stat, errmsg)
         if (stat /= 0) call fatal_collective('checkpoint', errmsg)
         if (all(sim%checkpoints /= path)) &
             sim%checkpoints = [character(len=512) :: sim%checkpoints, path]
-        do while (size(sim%checkpoints) > sim%cfg%checkpoints_kept)
+        do while (size(sim%checkpoints) > sim%cfg%restart%checkpoints_kept)
             if (env%rank == 0) call delete_file(trim(sim%checkpoints(1)))
             sim%checkpoints = sim%checkpoints(2:)
         end do
@@ -244,7 +249,7 @@ contains
         vmax = global_max(env, local_max_speed(sim%p))
         amax = global_max(env, local_max_acceleration(sim%p))
         lim = timestep_limits(sim%phys%kernel%h, sim%phys%c, vmax, sim%phys%nu, amax, &
-            sim%cfg%cfl, sim%cfg%viscous_safety, sim%cfg%force_safety)
+            sim%cfg%numerics%cfl, sim%cfg%numerics%viscous_safety, sim%cfg%numerics%force_safety)
     end function stable_timestep
 
     logical function uses_mirrors(sim)
@@ -297,9 +302,9 @@ contains
         real(wp) :: before, after
         character(len=128) :: line
         if (env%nranks == 1) return
-        if (mod(sim%step, int(sim%cfg%rebalance_check_interval, i8)) /= 0) return
+        if (mod(sim%step, int(sim%cfg%parallel%rebalance_check_interval, i8)) /= 0) return
         before = domain_imbalance(env, sim%p%n_owned)
-        if (before <= sim%cfg%rebalance_threshold) return
+        if (before <= sim%cfg%parallel%rebalance_threshold) return
         call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
         call halo_setup(sim%halo, sim%domain, sim%halo%reach)
         call migrate_particles(sim%domain, env, sim%p)
@@ -319,22 +324,24 @@ contains
         real(wp) :: sums(2), exact(3), y, width, t
         integer :: i
         error = -1.0_wp
-        if (trim(sim%cfg%analytic) == 'none') return
+        if (trim(sim%cfg%run%analytic) == 'none') return
         t = sim%time
         if (present(steady)) then
             if (steady) t = huge(1.0_wp)
         end if
-        width = sim%cfg%box_hi(2) - sim%cfg%box_lo(2)
+        width = sim%cfg%domain%box_hi(2) - sim%cfg%domain%box_lo(2)
         sums = 0.0_wp
         do i = 1, sim%p%n_owned
             if (sim%p%kind(i) /= KIND_FLUID) cycle
-            y = sim%p%x(2, i) - sim%cfg%box_lo(2)
+            y = sim%p%x(2, i) - sim%cfg%domain%box_lo(2)
             exact = 0.0_wp
-            select case (trim(sim%cfg%analytic))
+            select case (trim(sim%cfg%run%analytic))
             case ('poiseuille')
-                exact(1) = poiseuille_velocity(y, t, sim%cfg%body_force(1), width, sim%cfg%nu)
+                exact(1) = poiseuille_velocity(y, t, sim%cfg%fluid%body_force(1), width, &
+                    sim%cfg%fluid%nu)
             case ('couette')
-                exact(1) = couette_velocity(y, t, sim%cfg%wall_velocity(1, 4), width, sim%cfg%nu)
+                exact(1) = couette_velocity(y, t, sim%cfg%domain%wall_velocity(1, 4), width, &
+                    sim%cfg%fluid%nu)
             end select
             sums(1) = sums(1) + sum((sim%p%v(:, i) - exact)**2)
             sums(2) = sums(2) + sum(exact**2)
@@ -362,7 +369,8 @@ contains
 
         if (len(restart_from) > 0) then
             call simulation_restart(sim, env, cfg, restart_from)
-            if (sim%time >= cfg%t_end * (1.0_wp - 1.0e-12_wp)) call fatal_collective('restart', &
+            if (sim%time >= cfg%run%t_end * (1.0_wp - 1.0e-12_wp)) &
+                call fatal_collective('restart', &
                 'the checkpoint is already at the end time; raise &run t_end to continue the run')
         else
             call simulation_setup(sim, env, cfg)
@@ -375,19 +383,19 @@ contains
         wall_last = wall_start
         wall_checkpoint = wall_start
         first_step = sim%step
-        log_every = cfg%log_interval
+        log_every = cfg%run%log_interval
         steps_since_log = 0
         call log_info('     step     time [s]       dt [s]   max |v| [m/s]  ' // &
             'rho min..max [kg/m^3]        wall/step [s]  remaining [s]')
         finished = .false.
         do while (.not. finished)
-            dt_cap = min(next_output, cfg%t_end) - sim%time
+            dt_cap = min(next_output, cfg%run%t_end) - sim%time
             call simulation_step(sim, env, dt_cap)
             call maybe_rebalance(sim, env)
             steps_since_log = steps_since_log + 1
             if (log_every == 0) then
                 ! about 40 lines per run, from the first step's time step
-                log_every = max(1_i8, int(cfg%t_end / sim%last_limits%dt / 40.0_wp, i8))
+                log_every = max(1_i8, int(cfg%run%t_end / sim%last_limits%dt / 40.0_wp, i8))
                 if (sim%step == first_step + 1) then
                     write(line, '(a,es10.3,a,es10.3,a,es10.3,a,es10.3)') 'time step: dt = ', &
                         sim%last_limits%dt, ' s (limits: CFL ', sim%last_limits%cfl, &
@@ -395,7 +403,8 @@ contains
                     call log_info(trim(line) // ')')
                 end if
             end if
-            finished = sim%time >= cfg%t_end * (1.0_wp - 1.0e-12_wp) .or. sim%step >= cfg%max_steps
+            finished = sim%time >= cfg%run%t_end * (1.0_wp - 1.0e-12_wp) .or. &
+                sim%step >= cfg%run%max_steps
             if (sim%time >= next_output * (1.0_wp - 1.0e-12_wp) .or. finished) then
                 call write_output(sim, env)
                 next_output = next_output_time()
@@ -403,16 +412,16 @@ contains
             call cpu_clock(wall_now)
             if (finished) then
                 call simulation_write_checkpoint(sim, env)
-            else if (cfg%checkpoint_interval_steps > 0) then
-                if (mod(sim%step, int(cfg%checkpoint_interval_steps, i8)) == 0) then
+            else if (cfg%restart%checkpoint_interval_steps > 0) then
+                if (mod(sim%step, int(cfg%restart%checkpoint_interval_steps, i8)) == 0) then
                     call simulation_write_checkpoint(sim, env)
                     wall_checkpoint = wall_now
                 end if
             end if
             ! wall-clock interval: rank 0's clock decides for everybody
-            if (.not. finished .and. cfg%checkpoint_interval_wall > 0.0_wp) then
+            if (.not. finished .and. cfg%restart%checkpoint_interval_wall > 0.0_wp) then
                 if (global_max(env, merge(wall_now - wall_checkpoint, 0.0_wp, env%rank == 0)) >= &
-                    cfg%checkpoint_interval_wall) then
+                    cfg%restart%checkpoint_interval_wall) then
                     call simulation_write_checkpoint(sim, env)
                     wall_checkpoint = wall_now
                 end if
@@ -422,10 +431,10 @@ contains
                 rho_min = global_min(env, fluid_extreme(sim%p, .false.))
                 rho_max = global_max(env, fluid_extreme(sim%p, .true.))
                 remaining = (wall_now - wall_start) / real(sim%step - first_step, wp) * &
-                    max(0.0_wp, (cfg%t_end - sim%time) / max(sim%last_limits%dt, tiny(1.0_wp)))
+                    max(0.0_wp, (cfg%run%t_end - sim%time) / max(sim%last_limits%dt, tiny(1.0_wp)))
                 remaining = min(remaining, (wall_now - wall_start) / real(sim%step - first_step, &
                     wp) * &
-                    real(cfg%max_steps - sim%step, wp))
+                    real(cfg%run%max_steps - sim%step, wp))
                 write(line, '(i9,es13.5,es13.5,es16.6,es14.6,a,es12.6,es14.4,es14.3)') sim%step, &
                     sim%time, sim%last_limits%dt, global_max(env, local_max_speed(sim%p)), &
                     rho_min, '..', rho_max, (wall_now - wall_last) / real(steps_since_log, wp), &
@@ -439,15 +448,15 @@ contains
         write(line, '(a,i0,a,es12.5,a,f10.2,a)') 'finished: ', sim%step - first_step, &
             ' steps to t = ', sim%time, ' s in ', wall_now - wall_start, ' s wall'
         call log_info(trim(line))
-        if (trim(cfg%analytic) /= 'none') then
+        if (trim(cfg%run%analytic) /= 'none') then
             error = simulation_analytic_error(sim, env)
             write(line, '(a,es12.5,a,f9.5,a)') 'error against the analytic ' // &
-                trim(cfg%analytic) // ' solution at t = ', sim%time, ' s: relative L2 = ', &
+                trim(cfg%run%analytic) // ' solution at t = ', sim%time, ' s: relative L2 = ', &
                 100.0_wp * error, ' %'
             call log_info(trim(line))
             ! the steady profile is a meaningful reference after a few viscous times L^2/(pi^2 nu)
-            if (sim%time > 5.0_wp * (cfg%box_hi(2) - cfg%box_lo(2))**2 &
-                / (acos(-1.0_wp)**2 * cfg%nu)) then
+            if (sim%time > 5.0_wp * (cfg%domain%box_hi(2) - cfg%domain%box_lo(2))**2 &
+                / (acos(-1.0_wp)**2 * cfg%fluid%nu)) then
                 error = simulation_analytic_error(sim, env, steady=.true.)
                 write(line, '(a,f9.5,a)') 'error against the steady profile: relative L2 = ', &
                     100.0_wp * error, ' %'
@@ -459,21 +468,22 @@ contains
 
         !> The next time at which a snapshot is due (interval multiples and listed times).
         real(wp) function next_output_time() result(t)
-            t = cfg%t_end
-            if (cfg%output_interval > 0.0_wp) then
+            t = cfg%run%t_end
+            if (cfg%output%output_interval > 0.0_wp) then
                 do
                     interval_index = interval_index + 1
-                    if (real(interval_index, wp) * cfg%output_interval > &
+                    if (real(interval_index, wp) * cfg%output%output_interval > &
                         sim%time * (1.0_wp + 1.0e-12_wp)) exit
                 end do
                 interval_index = interval_index - 1
-                t = min(t, real(interval_index + 1, wp) * cfg%output_interval)
+                t = min(t, real(interval_index + 1, wp) * cfg%output%output_interval)
             end if
-            do while (next_listed <= cfg%n_output_times)
-                if (cfg%output_times(next_listed) > sim%time * (1.0_wp + 1.0e-12_wp)) exit
+            do while (next_listed <= size(cfg%output%output_times))
+                if (cfg%output%output_times(next_listed) > sim%time * (1.0_wp + 1.0e-12_wp)) exit
                 next_listed = next_listed + 1
             end do
-            if (next_listed <= cfg%n_output_times) t = min(t, cfg%output_times(next_listed))
+            if (next_listed <= size(cfg%output%output_times)) &
+                t = min(t, cfg%output%output_times(next_listed))
         end function next_output_time
     end subroutine simulation_run
 
@@ -486,21 +496,23 @@ contains
         integer(i8) :: rows
         real(wp) :: error
         character(len=160) :: line
-        path = snapshot_filename(trim(sim%cfg%output_dir), trim(sim%cfg%case_name), sim%step)
-        call write_snapshot(env, sim%p, path, sim%time, sim%step, sim%cfg%dimension, &
+        path = snapshot_filename(trim(sim%cfg%output%output_dir), trim(sim%cfg%run%case_name), &
+            sim%step)
+        call write_snapshot(env, sim%p, path, sim%time, sim%step, sim%cfg%domain%dimension, &
             code_version, sim%input_text, stat, errmsg)
         if (stat /= 0) call fatal_collective('output', errmsg)
         rows = global_sum(env, int(sim%p%n_owned, i8))
         k = index(path, '/', back=.true.)
         sim%snapshot_index = sim%snapshot_index // xdmf_index_entry(sim%time, sim%step, rows, &
             path(k + 1:))
-        xdmf_path = trim(sim%cfg%output_dir) // '/' // trim(sim%cfg%case_name) // '.xdmf'
+        xdmf_path = trim(sim%cfg%output%output_dir) // '/' // trim(sim%cfg%run%case_name) // &
+            '.xdmf'
         stat = 0
         if (env%rank == 0) call write_xdmf(xdmf_path, sim%snapshot_index, stat)
         if (global_max(env, int(stat, i8)) /= 0) &
             call fatal_collective('output', "cannot write '" // xdmf_path // "'")
         write(line, '(a,es12.5,a)') 'snapshot t = ', sim%time, ' s: ' // path
-        if (trim(sim%cfg%analytic) /= 'none' .and. sim%time > 0.0_wp) then
+        if (trim(sim%cfg%run%analytic) /= 'none' .and. sim%time > 0.0_wp) then
             error = simulation_analytic_error(sim, env)
             write(line, '(a,a,f8.4,a)') trim(line), ' (L2 error vs analytic ', 100.0_wp * error, &
                 ' %)'

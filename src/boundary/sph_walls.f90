@@ -32,19 +32,20 @@ contains
         type(config_t), intent(in) :: cfg
         type(wall_geometry_t) :: geo
         integer :: f, axis
-        geo%dim = cfg%dimension
-        geo%lo = cfg%box_lo
-        geo%hi = cfg%box_hi
-        do f = 1, 2 * cfg%dimension
+        geo%dim = cfg%domain%dimension
+        geo%lo = cfg%domain%box_lo
+        geo%hi = cfg%domain%box_hi
+        do f = 1, 2 * cfg%domain%dimension
             axis = (f + 1) / 2
-            geo%is_wall(f) = cfg%is_wall(f)
+            geo%is_wall(f) = cfg%domain%is_wall(f)
             if (mod(f, 2) == 1) then
-                geo%plane(f) = cfg%box_lo(axis)
+                geo%plane(f) = cfg%domain%box_lo(axis)
             else
-                geo%plane(f) = cfg%box_hi(axis)
+                geo%plane(f) = cfg%domain%box_hi(axis)
             end if
             geo%velocity(:, f) = 0.0_wp
-            geo%velocity(1:cfg%dimension, f) = cfg%wall_velocity(1:cfg%dimension, f)
+            geo%velocity(1:cfg%domain%dimension, f) = &
+                cfg%domain%wall_velocity(1:cfg%domain%dimension, f)
         end do
     end function wall_geometry_from_config
 
@@ -62,9 +63,9 @@ contains
         integer, intent(out) :: first(3), last(3)
         integer :: axis
         first = 1; last = 1
-        do axis = 1, cfg%dimension
-            last(axis) = nint((cfg%box_hi(axis) - cfg%box_lo(axis)) / cfg%dx)
-            if (cfg%is_wall(2*axis - 1)) then
+        do axis = 1, cfg%domain%dimension
+            last(axis) = nint((cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis)) / cfg%domain%dx)
+            if (cfg%domain%is_wall(2*axis - 1)) then
                 first(axis) = 1 - layers
                 last(axis) = last(axis) + layers
             end if

@@ -27,11 +27,12 @@ contains
         logical :: site
 
         n_inside = 1
-        do axis = 1, cfg%dimension
-            n_inside(axis) = nint((cfg%box_hi(axis) - cfg%box_lo(axis)) / cfg%dx)
+        do axis = 1, cfg%domain%dimension
+            n_inside(axis) = nint((cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis)) / &
+                cfg%domain%dx)
         end do
         n_fluid_total = product(int(n_inside, i8))
-        mass = cfg%rho0 * cfg%dx**cfg%dimension
+        mass = cfg%fluid%rho0 * cfg%domain%dx**cfg%domain%dimension
         p%n_owned = 0
         ! fluid
         do k = 1, n_inside(3)
@@ -56,7 +57,8 @@ contains
                 do j = first(2), last(2)
                     do i = first(1), last(1)
                         idx = [i, j, k]
-                        call wall_site(geo, n_inside, idx, cfg%dx, site, face, normal, distance)
+                        call wall_site(geo, n_inside, idx, cfg%domain%dx, site, face, normal, &
+                            distance)
                         if (.not. site) cycle
                         xi = lattice_position(idx)
                         if (domain_owner(domain, xi) /= domain%rank) cycle
@@ -81,8 +83,8 @@ contains
             integer, intent(in) :: ix(3)
             real(wp) :: x(3)
             x = 0.0_wp
-            x(1:cfg%dimension) = cfg%box_lo(1:cfg%dimension) + &
-                (real(ix(1:cfg%dimension), wp) - 0.5_wp) * cfg%dx
+            x(1:cfg%domain%dimension) = cfg%domain%box_lo(1:cfg%domain%dimension) + &
+                (real(ix(1:cfg%domain%dimension), wp) - 0.5_wp) * cfg%domain%dx
         end function lattice_position
 
         subroutine add_particle(x, id, kind, wall_normal, wall_distance, velocity)
@@ -94,14 +96,14 @@ contains
             call particles_reserve(p, n)
             p%x(:, n) = x
             p%v(:, n) = velocity
-            p%rho(n) = cfg%rho0
-            p%p(n) = eos_pressure(phys%eos, cfg%rho0, phys%rho0, phys%c, phys%gamma)
+            p%rho(n) = cfg%fluid%rho0
+            p%p(n) = eos_pressure(phys%eos, cfg%fluid%rho0, phys%rho0, phys%c, phys%gamma)
             p%m(n) = mass
             p%h(n) = phys%kernel%h
             p%e(n) = 0.0_wp
             p%dvdt(:, n) = 0.0_wp; p%drhodt(n) = 0.0_wp; p%dedt(n) = 0.0_wp
             p%x_old(:, n) = x; p%v_old(:, n) = velocity
-            p%rho_old(n) = cfg%rho0; p%e_old(n) = 0.0_wp
+            p%rho_old(n) = cfg%fluid%rho0; p%e_old(n) = 0.0_wp
             p%strain(:, n) = 0.0_wp
             p%wall_normal(:, n) = wall_normal
             p%wall_distance(n) = wall_distance
@@ -119,14 +121,14 @@ contains
             integer(i8) :: id
             real(wp) :: x(3), nrm(3)
             id = id_base + 1000000000_i8   ! clear of every fluid id
-            do f = 1, 2 * cfg%dimension
+            do f = 1, 2 * cfg%domain%dimension
                 if (.not. geo%is_wall(f)) cycle
                 ax = (f + 1) / 2
                 t1 = merge(2, 1, ax == 1)
                 t2 = 6 - ax - t1
                 na = n_inside(t1)
                 nb = 1
-                if (cfg%dimension == 3) nb = n_inside(t2)
+                if (cfg%domain%dimension == 3) nb = n_inside(t2)
                 nrm = 0.0_wp
                 nrm(ax) = merge(1.0_wp, -1.0_wp, mod(f, 2) == 1)
                 do b = 1, nb
@@ -134,9 +136,9 @@ contains
                         id = id + 1
                         x = 0.0_wp
                         x(ax) = geo%plane(f)
-                        x(t1) = cfg%box_lo(t1) + (real(a, wp) - 0.5_wp) * cfg%dx
-                        if (cfg%dimension == 3) x(t2) = cfg%box_lo(t2) + (real(b, &
-                            wp) - 0.5_wp) * cfg%dx
+                        x(t1) = cfg%domain%box_lo(t1) + (real(a, wp) - 0.5_wp) * cfg%domain%dx
+                        if (cfg%domain%dimension == 3) x(t2) = cfg%domain%box_lo(t2) + (real(b, &
+                            wp) - 0.5_wp) * cfg%domain%dx
                         if (domain_owner(domain, x) /= domain%rank) cycle
                         call add_particle(x, id, KIND_WALL, nrm, 0.0_wp, geo%velocity(:, f))
                     end do

@@ -1,7 +1,7 @@
 !> Collective loading of the input file: rank 0 reads, the text is broadcast, every rank parses
 !> and validates the same text, so a bad input stops all ranks with the same single message.
 module sph_input
-    use sph_config, only: config_t, config_parse, config_validate, config_read_file
+    use sph_config, only: config_t, config_parse, config_read_file
     use sph_mpi_env, only: mpi_env_t, broadcast_text
     implicit none
     private
@@ -30,7 +30,5 @@ contains
             end if
         end if
         call config_parse(cfg, text, filename, stat, errmsg)
-        if (stat /= 0) return
-        call config_validate(cfg, stat, errmsg)
     end subroutine load_config
 end module sph_input

@@ -50,64 +50,69 @@ contains
 
         stat = 0
         errmsg = ''
-        phys%dim = cfg%dimension
-        phys%dx = cfg%dx
-        h = cfg%h_factor
-        if (h <= 0.0_wp) h = kernel_default_h_factor(kernel_id_from_name(cfg%kernel))
-        phys%kernel = kernel_create(kernel_id_from_name(cfg%kernel), cfg%dimension, h * cfg%dx)
-        phys%rho0 = cfg%rho0
-        phys%nu = cfg%nu
+        phys%dim = cfg%domain%dimension
+        phys%dx = cfg%domain%dx
+        h = cfg%numerics%h_factor
+        if (h <= 0.0_wp) h = kernel_default_h_factor(kernel_id_from_name(cfg%numerics%kernel))
+        phys%kernel = kernel_create(kernel_id_from_name(cfg%numerics%kernel), &
+            cfg%domain%dimension, h * cfg%domain%dx)
+        phys%rho0 = cfg%fluid%rho0
+        phys%nu = cfg%fluid%nu
         phys%body_force = 0.0_wp
-        phys%body_force(1:cfg%dimension) = cfg%body_force(1:cfg%dimension)
-        phys%eos = eos_id_from_name(cfg%eos)
-        phys%gamma = cfg%tait_gamma
-        select case (trim(cfg%density_method))
+        phys%body_force(1:cfg%domain%dimension) = cfg%fluid%body_force(1:cfg%domain%dimension)
+        phys%eos = eos_id_from_name(cfg%fluid%eos)
+        phys%gamma = cfg%fluid%tait_gamma
+        select case (trim(cfg%numerics%density_method))
         case ('summation'); phys%density_method = DENSITY_SUMMATION
         case default; phys%density_method = DENSITY_CONTINUITY
         end select
-        select case (trim(cfg%viscosity_model))
+        select case (trim(cfg%numerics%viscosity_model))
         case ('strain_rate'); phys%viscosity = VISCOSITY_STRAIN_RATE
         case default; phys%viscosity = VISCOSITY_MORRIS
         end select
-        select case (trim(cfg%wall_model))
+        select case (trim(cfg%numerics%wall_model))
         case ('repulsive'); phys%walls = WALLS_REPULSIVE
         case ('mirror'); phys%walls = WALLS_MIRROR
         case ('repulsive_mirror'); phys%walls = WALLS_REPULSIVE_MIRROR
         case default; phys%walls = WALLS_MORRIS
         end select
-        phys%beta_max = cfg%beta_max
+        phys%beta_max = cfg%numerics%beta_max
         phys%eta2 = 0.01_wp * phys%kernel%h**2
         phys%viscous_scale = 1.0_wp
-        if (trim(cfg%viscosity_normalisation) == 'lattice') phys%viscous_scale = &
-            1.0_wp / lattice_laplacian_moment(phys%kernel, cfg%dx, phys%eta2)
+        if (trim(cfg%numerics%viscosity_normalisation) == 'lattice') phys%viscous_scale = &
+            1.0_wp / lattice_laplacian_moment(phys%kernel, cfg%domain%dx, phys%eta2)
 
         ! length scale: the narrowest wall-to-wall gap, else the smallest box side
-        length = cfg%length_scale
+        length = cfg%fluid%length_scale
         if (length <= 0.0_wp) then
             length = huge(1.0_wp)
-            do axis = 1, cfg%dimension
-                if (cfg%is_wall(2*axis - 1)) length = min(length, &
-                    cfg%box_hi(axis) - cfg%box_lo(axis))
+            do axis = 1, cfg%domain%dimension
+                if (cfg%domain%is_wall(2*axis - 1)) length = min(length, &
+                    cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis))
             end do
-            if (length == huge(1.0_wp)) length = minval(cfg%box_hi(1:cfg%dimension) - &
-                cfg%box_lo(1:cfg%dimension))
+            if (length == huge(1.0_wp)) length = &
+                minval(cfg%domain%box_hi(1:cfg%domain%dimension) - &
+                cfg%domain%box_lo(1:cfg%domain%dimension))
         end if
         force = norm2(phys%body_force)
-        velocity = cfg%velocity_scale
+        velocity = cfg%fluid%velocity_scale
         if (velocity <= 0.0_wp) then
             ! fastest wall, or the peak of the Poiseuille profile the body force drives
             velocity = 0.0_wp
             do f = 1, n_faces
-                if (cfg%is_wall(f)) velocity = max(velocity, norm2(cfg%wall_velocity(:, f)))
+                if (cfg%domain%is_wall(f)) &
+                    velocity = max(velocity, norm2(cfg%domain%wall_velocity(:, f)))
             end do
-            if (cfg%nu > 0.0_wp) velocity = max(velocity, force * length**2 / (8.0_wp * cfg%nu))
+            if (cfg%fluid%nu > 0.0_wp) &
+                velocity = max(velocity, force * length**2 / (8.0_wp * cfg%fluid%nu))
         end if
         phys%velocity_scale = velocity
         phys%length_scale = length
-        if (cfg%sound_speed > 0.0_wp) then
-            phys%c = cfg%sound_speed
+        if (cfg%fluid%sound_speed > 0.0_wp) then
+            phys%c = cfg%fluid%sound_speed
         else
-            phys%c = morris_sound_speed(velocity, cfg%nu, length, force, cfg%density_variation)
+            phys%c = morris_sound_speed(velocity, cfg%fluid%nu, length, force, &
+                cfg%fluid%density_variation)
             if (.not. (phys%c > 0.0_wp)) then
                 stat = 1
                 errmsg = '&fluid sound_speed = 0 asks for the automatic (Morris) sound speed, ' // &
@@ -116,13 +121,13 @@ contains
                 return
             end if
         end if
-        phys%repulsive_d = cfg%repulsive_strength
+        phys%repulsive_d = cfg%numerics%repulsive_strength
         if (phys%repulsive_d <= 0.0_wp) phys%repulsive_d = velocity**2
-        phys%repulsive_r0 = cfg%repulsive_r0
+        phys%repulsive_r0 = cfg%numerics%repulsive_r0
         ! the first fluid row starts dx/2 from the wall plane: no repulsion in the initial state
-        if (phys%repulsive_r0 <= 0.0_wp) phys%repulsive_r0 = 0.5_wp * cfg%dx
-        phys%repulsive_n1 = cfg%repulsive_n1
-        phys%repulsive_n2 = cfg%repulsive_n2
+        if (phys%repulsive_r0 <= 0.0_wp) phys%repulsive_r0 = 0.5_wp * cfg%domain%dx
+        phys%repulsive_n1 = cfg%numerics%repulsive_n1
+        phys%repulsive_n2 = cfg%numerics%repulsive_n2
     end subroutine physics_from_config
 
     !> Morris' viscous term is exact for a quadratic velocity field only if the discrete second

@@ -3,7 +3,7 @@
 module test_sph_cases
     use, intrinsic :: iso_fortran_env, only: error_unit
     use sph_kinds, only: wp
-    use sph_config, only: config_t, config_parse, config_validate, axis_is_periodic
+    use sph_config, only: config_t, config_parse
     use sph_domain, only: domain_t, domain_set_tree
     implicit none
     private
@@ -21,7 +21,6 @@ contains
         integer :: stat
         character(len=:), allocatable :: msg
         call config_parse(cfg, text, 'test', stat, msg)
-        if (stat == 0) call config_validate(cfg, stat, msg)
         if (stat /= 0) then
             write(error_unit, '(a)') 'test configuration invalid: ' // msg
             error stop 1
@@ -98,15 +97,15 @@ contains
         type(config_t), intent(in) :: cfg
         type(domain_t) :: domain
         integer :: axis
-        domain%dim = cfg%dimension
+        domain%dim = cfg%domain%dimension
         domain%nranks = 1
         domain%rank = 0
-        domain%lo = cfg%box_lo
-        domain%hi = cfg%box_hi
-        domain%length = cfg%box_hi - cfg%box_lo
+        domain%lo = cfg%domain%box_lo
+        domain%hi = cfg%domain%box_hi
+        domain%length = cfg%domain%box_hi - cfg%domain%box_lo
         domain%periodic = .false.
-        do axis = 1, cfg%dimension
-            domain%periodic(axis) = axis_is_periodic(cfg, axis)
+        do axis = 1, cfg%domain%dimension
+            domain%periodic(axis) = cfg%domain%is_periodic(axis)
         end do
         call domain_set_tree(domain, [0], [0], [0], [0], [0.0_wp])
     end function single_rank_domain

@@ -1,0 +1,1111 @@
+!> Fortran namelist text parsed into groups of key -> value tokens, and the declaration API
+!> through which each owning module reads its keys.
+!>
+!> Syntax: `&group key = value, key(2) = v, arr = 1.0, 2.0, key(1,4) = 2.5e-5, key(1:3,4) =
+!> a, b, c, 3*0.0, 'str', "str" (with & / ! inside), .true./T, ! comments, several pairs per
+!> line, values over several lines /` (or `&end`). Groups are kept in file order, so a group
+!> given several times yields several instances (for owners that ask for a list).
+!>
+!> An owner reads its keys with `grp%get_real('rho0', x, default=..., min_exclusive=..., unit=
+!> ..., doc=...)` and friends. Each call records the key (for the unknown-key check and the
+!> documentation registry), converts the tokens with Fortran's list-directed read (so values
+!> are bit-identical to a namelist read), checks type and range, collects every error, and
+!> appends the resolved value, round-trip exact, to the group's resolved text.
+module sph_namelist
+    use sph_kinds, only: wp
+    implicit none
+    private
+    public :: nml_file_t, nml_group_t, nml_key_t, nml_parse, real_text
+
+    character(len=*), parameter :: nl = new_line('a')
+    character(len=*), parameter :: name_chars = &
+        'abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_%'
+
+    type :: nml_value_t
+        character(len=:), allocatable :: text   !< token; strings without their quotes
+        logical :: quoted = .false.
+        logical :: null = .false.                !< an empty entry: leaves the element as it is
+    end type nml_value_t
+
+    !> One assignment `key(subscript) = values`.
+    type :: nml_item_t
+        character(len=:), allocatable :: key, subscript
+        type(nml_value_t), allocatable :: values(:)
+        integer :: line = 0
+        logical :: used = .false.
+    end type nml_item_t
+
+    !> A declared key, as documented: the registry behind doc checks and error messages.
+    type, public :: nml_key_t
+        character(len=:), allocatable :: group, key, kind, default, range, unit, doc
+    end type nml_key_t
+
+    type :: nml_group_t
+        character(len=:), allocatable :: name
+        integer :: line = 0                      !< line of `&name`; 0 = group absent
+        type(nml_item_t), allocatable :: items(:)
+        type(nml_key_t), allocatable :: keys(:)  !< declared keys, in declaration order
+        character(len=:), allocatable :: resolved !< `    key = value` lines
+        character(len=:), allocatable :: errors  !< one line per error, each starting nl
+        integer :: n_errors = 0
+    contains
+        procedure :: get_real, get_int, get_logical, get_string
+        procedure :: get_real_array, get_real_matrix, get_string_array, get_real_list
+        procedure :: error => group_error
+        procedure :: finish => group_finish
+        procedure :: to_text => group_to_text
+        procedure, private :: find, declare, convert_reals, element_order
+    end type nml_group_t
+
+    type :: nml_file_t
+        character(len=:), allocatable :: source
+        type(nml_group_t), allocatable :: groups(:)
+    contains
+        procedure :: check_groups, take, take_all
+    end type nml_file_t
+
+contains
+
+    ! ================================ parsing ================================
+
+    !> Split text into groups of assignments. Syntax errors (an unterminated group or string,
+    !> a value without a key) stop with stat /= 0 and a message naming source, line and group.
+    subroutine nml_parse(text, source, file, stat, errmsg)
+        character(len=*), intent(in) :: text, source
+        type(nml_file_t), intent(out) :: file
+        integer, intent(out) :: stat
+        character(len=:), allocatable, intent(out) :: errmsg
+        integer :: pos, line, n_groups
+        character(len=:), allocatable :: tok, pending_key, pending_sub
+        integer :: kind_tok, tok_line, open_line
+        logical :: quoted, in_group, expect_value, after_value, repeat_quoted
+        integer :: key_line
+        type(nml_group_t) :: grp
+        type(nml_value_t), allocatable :: values(:)
+        type(nml_group_t), allocatable :: groups(:)
+        integer, parameter :: t_eof = 0, t_group = 1, t_end = 2, t_name = 3, t_value = 4, &
+            t_comma = 5
+
+        stat = 0
+        errmsg = ''
+        file%source = source
+        allocate(groups(0))
+        pos = 1
+        line = 1
+        in_group = .false.
+        expect_value = .false.
+        n_groups = 0
+        open_line = 0
+        do
+            call next_token(kind_tok, tok, quoted, tok_line)
+            if (stat /= 0) return
+            if (.not. in_group) then
+                select case (kind_tok)
+                case (t_eof)
+                    exit
+                case (t_group)
+                    grp = nml_group_t(name=tok, line=tok_line)
+                    allocate(grp%items(0), grp%keys(0))
+                    grp%resolved = ''
+                    grp%errors = ''
+                    in_group = .true.
+                    open_line = tok_line
+                case default
+                    call fail(tok_line, "text outside a group: '" // tok // "'")
+                    return
+                end select
+                cycle
+            end if
+            select case (kind_tok)
+            case (t_eof)
+                call fail(open_line, 'group &' // grp%name // ' is not closed by / ' // &
+                    '(truncated file?)')
+                return
+            case (t_group)
+                call fail(tok_line, 'group &' // tok // ' starts inside &' // grp%name // &
+                    ' (opened on line ' // itoa(open_line) // '), which is not closed by /')
+                return
+            case (t_end)
+                if (expect_value) call store()
+                expect_value = .false.
+                groups = [groups, grp]
+                in_group = .false.
+            case (t_name)
+                if (expect_value) call store()
+                call split_key(tok, pending_key, pending_sub)
+                if (stat /= 0) return
+                allocate(values(0))
+                expect_value = .true.
+                after_value = .false.
+                key_line = tok_line
+            case (t_comma)
+                if (.not. expect_value) then
+                    call fail(tok_line, 'stray comma in &' // grp%name)
+                    return
+                end if
+                ! a comma after a value only separates; one after '=' or a comma is a null
+                if (.not. after_value) values = [values, nml_value_t(text='', null=.true.)]
+                after_value = .false.
+            case (t_value)
+                if (.not. expect_value) then
+                    call fail(tok_line, "value '" // tok // "' in &" // grp%name // &
+                        ' has no key (expected key = value)')
+                    return
+                end if
+                call add_value(tok, quoted, tok_line)
+                if (stat /= 0) return
+                after_value = .true.
+            end select
+        end do
+        file%groups = groups
+
+    contains
+
+        subroutine store()
+            type(nml_item_t) :: item
+            item%values = values
+            item%key = pending_key
+            item%subscript = pending_sub
+            item%line = key_line
+            grp%items = [grp%items, item]
+            deallocate(values)
+        end subroutine store
+
+        subroutine add_value(token, is_quoted, at_line)
+            character(len=*), intent(in) :: token
+            logical, intent(in) :: is_quoted
+            integer, intent(in) :: at_line
+            integer :: star, count, ios, k
+            character(len=:), allocatable :: rest
+            star = 0
+            if (.not. is_quoted) star = index(token, '*')
+            if (star > 1 .and. verify(token(1:star - 1), '0123456789') == 0) then
+                read(token(1:star - 1), *, iostat=ios) count
+                if (ios /= 0 .or. count < 1) then
+                    call fail(at_line, "bad repeat count in '" // token // "'")
+                    return
+                end if
+                rest = token(star + 1:)
+                do k = 1, count
+                    values = [values, nml_value_t(text=rest, quoted=repeat_quoted, &
+                        null=len(rest) == 0 .and. .not. repeat_quoted)]
+                end do
+            else
+                values = [values, nml_value_t(text=token, quoted=is_quoted)]
+            end if
+        end subroutine add_value
+
+        subroutine split_key(token, key, sub)
+            character(len=*), intent(in) :: token
+            character(len=:), allocatable, intent(out) :: key, sub
+            integer :: p
+            p = index(token, '(')
+            if (p == 0) then
+                key = to_lower(token)
+                sub = ''
+            else
+                key = to_lower(token(1:p - 1))
+                if (token(len(token):len(token)) /= ')') then
+                    call fail(tok_line, "bad subscript in '" // token // "'")
+                    return
+                end if
+                sub = token(p + 1:len(token) - 1)
+            end if
+            if (len(key) == 0 .or. verify(key, name_chars) /= 0) &
+                call fail(tok_line, "bad key name '" // token // "' in &" // grp%name)
+        end subroutine split_key
+
+        subroutine fail(at_line, what)
+            integer, intent(in) :: at_line
+            character(len=*), intent(in) :: what
+            stat = 1
+            errmsg = source // ':' // itoa(at_line) // ': ' // what
+        end subroutine fail
+
+        !> The next token: a group start (&name), an end (/ or &end), a key (name or name(..)
+        !> followed by =), a comma, or a value (bare token or quoted string).
+        subroutine next_token(kind_out, token, is_quoted, at_line)
+            integer, intent(out) :: kind_out
+            character(len=:), allocatable, intent(out) :: token
+            logical, intent(out) :: is_quoted
+            integer, intent(out) :: at_line
+            integer :: start, depth, p
+            character(len=1) :: ch
+            is_quoted = .false.
+            repeat_quoted = .false.
+            token = ''
+            ! skip blanks, new lines and comments
+            do
+                if (pos > len(text)) then
+                    kind_out = t_eof
+                    at_line = line
+                    return
+                end if
+                ch = text(pos:pos)
+                if (ch == nl) then
+                    line = line + 1
+                    pos = pos + 1
+                else if (ch == ' ' .or. ch == achar(9) .or. ch == achar(13)) then
+                    pos = pos + 1
+                else if (ch == '!') then
+                    do while (pos <= len(text))
+                        if (text(pos:pos) == nl) exit
+                        pos = pos + 1
+                    end do
+                else
+                    exit
+                end if
+            end do
+            at_line = line
+            if (ch == '&' .or. ch == '$') then
+                start = pos + 1
+                pos = start
+                do while (pos <= len(text))
+                    if (verify(text(pos:pos), name_chars) /= 0) exit
+                    pos = pos + 1
+                end do
+                token = to_lower(text(start:pos - 1))
+                if (token == 'end') then
+                    kind_out = t_end
+                else if (len(token) == 0) then
+                    call fail(line, "'" // ch // "' without a group name")
+                else
+                    kind_out = t_group
+                end if
+                return
+            end if
+            if (ch == '/') then
+                pos = pos + 1
+                kind_out = t_end
+                return
+            end if
+            if (ch == ',' .or. ch == ';') then
+                pos = pos + 1
+                kind_out = t_comma
+                return
+            end if
+            kind_out = t_value
+            if (ch == '"' .or. ch == "'") then
+                call read_string(token)
+                is_quoted = .true.
+                return
+            end if
+            start = pos
+            depth = 0
+            do while (pos <= len(text))
+                ch = text(pos:pos)
+                if (ch == '(') depth = depth + 1
+                if (ch == ')') depth = depth - 1
+                if (depth == 0) then
+                    if (index(' ,;/=!' // nl // achar(9) // achar(13), ch) > 0) exit
+                    if ((ch == '"' .or. ch == "'") .and. pos > start) then
+                        if (text(pos - 1:pos - 1) == '*') exit
+                    end if
+                end if
+                pos = pos + 1
+            end do
+            token = text(start:pos - 1)
+            if (pos <= len(text)) then
+                ch = text(pos:pos)
+                if ((ch == '"' .or. ch == "'") .and. token(len(token):len(token)) == '*') then
+                    block
+                        character(len=:), allocatable :: str
+                        call read_string(str)
+                        token = token // str
+                        repeat_quoted = .true.
+                    end block
+                    return
+                end if
+            end if
+            ! a key is a name followed by '='
+            p = pos
+            do while (p <= len(text))
+                if (text(p:p) /= ' ' .and. text(p:p) /= achar(9)) exit
+                p = p + 1
+            end do
+            if (p <= len(text)) then
+                if (text(p:p) == '=') then
+                    kind_out = t_name
+                    pos = p + 1
+                end if
+            end if
+        end subroutine next_token
+
+        subroutine read_string(str)
+            character(len=:), allocatable, intent(out) :: str
+            character(len=1) :: q
+            integer :: start_line
+            q = text(pos:pos)
+            start_line = line
+            str = ''
+            pos = pos + 1
+            do
+                if (pos > len(text)) then
+                    call fail(start_line, 'string not closed by ' // q // ' in &' // grp%name)
+                    return
+                end if
+                if (text(pos:pos) == q) then
+                    if (pos < len(text)) then
+                        if (text(pos + 1:pos + 1) == q) then   ! doubled quote
+                            str = str // q
+                            pos = pos + 2
+                            cycle
+                        end if
+                    end if
+                    pos = pos + 1
+                    exit
+                end if
+                if (text(pos:pos) == nl) line = line + 1
+                if (text(pos:pos) /= achar(13)) str = str // text(pos:pos)
+                pos = pos + 1
+            end do
+        end subroutine read_string
+    end subroutine nml_parse
+
+    ! ======================== groups: checks and lookup ========================
+
+    !> Refuse unknown groups (listing the allowed ones) and a group given more than once unless
+    !> its owner reads a list of them. Errors are appended to errmsg; stat counts them.
+    subroutine check_groups(self, allowed, lists, stat, errmsg)
+        class(nml_file_t), intent(in) :: self
+        character(len=*), intent(in) :: allowed(:), lists(:)
+        integer, intent(inout) :: stat
+        character(len=:), allocatable, intent(inout) :: errmsg
+        integer :: g, h, count
+        do g = 1, size(self%groups)
+            associate (name => self%groups(g)%name)
+                if (.not. any(name == allowed)) then
+                    stat = stat + 1
+                    errmsg = errmsg // nl // '  ' // self%source // ':' // &
+                        itoa(self%groups(g)%line) // ': unknown namelist group &' // name // &
+                        suggestion(name, allowed) // '. Allowed groups: ' // &
+                        join(allowed, ', &', '&')
+                    cycle
+                end if
+                if (any(name == lists)) cycle
+                count = 0
+                do h = 1, g - 1
+                    if (self%groups(h)%name == name) count = count + 1
+                end do
+                if (count == 1) then
+                    stat = stat + 1
+                    errmsg = errmsg // nl // '  ' // self%source // ':' // &
+                        itoa(self%groups(g)%line) // ': namelist group &' // name // &
+                        ' appears more than once; give each group once'
+                end if
+            end associate
+        end do
+    end subroutine check_groups
+
+    !> The one instance of a group (an empty instance if absent: every key keeps its default).
+    function take(self, name) result(grp)
+        class(nml_file_t), intent(in) :: self
+        character(len=*), intent(in) :: name
+        type(nml_group_t) :: grp
+        integer :: g
+        do g = 1, size(self%groups)
+            if (self%groups(g)%name == name) then
+                grp = self%groups(g)
+                return
+            end if
+        end do
+        grp%name = name
+        allocate(grp%items(0), grp%keys(0))
+        grp%resolved = ''
+        grp%errors = ''
+    end function take
+
+    !> Every instance of a repeated group, in file order.
+    function take_all(self, name) result(grps)
+        class(nml_file_t), intent(in) :: self
+        character(len=*), intent(in) :: name
+        type(nml_group_t), allocatable :: grps(:)
+        integer :: g
+        allocate(grps(0))
+        do g = 1, size(self%groups)
+            if (self%groups(g)%name == name) grps = [grps, self%groups(g)]
+        end do
+    end function take_all
+
+    !> Record an error against a key of this group: `  &group key: what`.
+    subroutine group_error(self, key, what)
+        class(nml_group_t), intent(inout) :: self
+        character(len=*), intent(in) :: key, what
+        self%n_errors = self%n_errors + 1
+        self%errors = self%errors // nl // '  &' // self%name // ' ' // key // ': ' // what
+    end subroutine group_error
+
+    !> After the owner has declared its keys: every key given but not declared is an error,
+    !> with the closest declared name suggested and the allowed keys listed.
+    subroutine group_finish(self)
+        class(nml_group_t), intent(inout) :: self
+        integer :: i, k
+        character(len=64), allocatable :: names(:)
+        allocate(names(size(self%keys)))
+        do k = 1, size(self%keys)
+            names(k) = self%keys(k)%key
+        end do
+        do i = 1, size(self%items)
+            if (self%items(i)%used) cycle
+            call self%error(self%items(i)%key, 'unknown key (line ' // &
+                itoa(self%items(i)%line) // ')' // suggestion(self%items(i)%key, names) // &
+                '. Allowed keys in &' // self%name // ': ' // join(names, ', ', ''))
+        end do
+    end subroutine group_finish
+
+    !> The group with its resolved values, as namelist text.
+    function group_to_text(self) result(text)
+        class(nml_group_t), intent(in) :: self
+        character(len=:), allocatable :: text
+        text = '&' // self%name // nl // self%resolved // '/' // nl
+    end function group_to_text
+
+    ! ============================ declaration API ============================
+
+    integer function find(self, key)
+        class(nml_group_t), intent(inout) :: self
+        character(len=*), intent(in) :: key
+        integer :: i
+        find = 0
+        do i = 1, size(self%items)
+            if (self%items(i)%key == key) then
+                if (find /= 0) then
+                    call self%error(key, 'given more than once (lines ' // &
+                        itoa(self%items(find)%line) // ' and ' // &
+                        itoa(self%items(i)%line) // ')')
+                end if
+                find = i
+                self%items(i)%used = .true.
+            end if
+        end do
+    end function find
+
+    subroutine declare(self, key, kind, default, range, unit, doc)
+        class(nml_group_t), intent(inout) :: self
+        character(len=*), intent(in) :: key, kind, default, range
+        character(len=*), intent(in), optional :: unit, doc
+        type(nml_key_t) :: d
+        d = nml_key_t(group=self%name, key=key, kind=kind, default=default, range=range, &
+            unit='', doc='')
+        if (present(unit)) d%unit = unit
+        if (present(doc)) d%doc = doc
+        self%keys = [self%keys, d]
+    end subroutine declare
+
+    !> A real scalar with optional bounds; the error states the bounds and the unit.
+    subroutine get_real(self, key, var, default, min, max, min_exclusive, max_exclusive, &
+            unit, doc)
+        class(nml_group_t), intent(inout) :: self
+        character(len=*), intent(in) :: key
+        real(wp), intent(out) :: var
+        real(wp), intent(in) :: default
+        real(wp), intent(in), optional :: min, max, min_exclusive, max_exclusive
+        character(len=*), intent(in), optional :: unit, doc
+        real(wp) :: buf(1)
+        buf = default
+        call self%get_real_array(key, buf, default, min, max, min_exclusive, max_exclusive, &
+            unit, doc, scalar=.true.)
+        var = buf(1)
+    end subroutine get_real
+
+    !> A real array (filled from element 1, or from the subscript given: `key(2) = v`).
+    subroutine get_real_array(self, key, var, default, min, max, min_exclusive, &
+            max_exclusive, unit, doc, scalar)
+        class(nml_group_t), intent(inout) :: self
+        character(len=*), intent(in) :: key
+        real(wp), intent(out) :: var(:)
+        real(wp), intent(in) :: default
+        real(wp), intent(in), optional :: min, max, min_exclusive, max_exclusive
+        character(len=*), intent(in), optional :: unit, doc
+        logical, intent(in), optional :: scalar
+        character(len=:), allocatable :: range
+        integer :: i, k
+        logical :: is_scalar
+        is_scalar = .false.
+        if (present(scalar)) is_scalar = scalar
+        range = range_text(min, max, min_exclusive, max_exclusive)
+        if (is_scalar) then
+            call self%declare(key, 'real', real_text(default), range, unit, doc)
+        else
+            call self%declare(key, 'real(' // itoa(size(var)) // ')', real_text(default), &
+                range, unit, doc)
+        end if
+        var = default
+        i = self%find(key)
+        if (i /= 0) call self%convert_reals(self%items(i), var, [size(var)])
+        do k = 1, size(var)
+            if (.not. in_range(var(k))) then
+                if (is_scalar) then
+                    call self%error(key, real_text(var(k)) // ' is out of range: must be ' // &
+                        range // unit_suffix(unit))
+                else
+                    call self%error(key // '(' // itoa(k) // ')', real_text(var(k)) // &
+                        ' is out of range: must be ' // range // unit_suffix(unit))
+                end if
+            end if
+        end do
+        call append_resolved(self, key, reals_text(var))
+    contains
+        logical function in_range(x)
+            real(wp), intent(in) :: x
+            in_range = .true.
+            if (present(min)) in_range = in_range .and. x >= min
+            if (present(max)) in_range = in_range .and. x <= max
+            if (present(min_exclusive)) in_range = in_range .and. x > min_exclusive
+            if (present(max_exclusive)) in_range = in_range .and. x < max_exclusive
+        end function in_range
+    end subroutine get_real_array
+
+    !> A real rank-2 array, e.g. wall_velocity(3, 6); `key(1,4) = v` and `key(1:3,4) = a,b,c`.
+    subroutine get_real_matrix(self, key, var, default, unit, doc)
+        class(nml_group_t), intent(inout) :: self
+        character(len=*), intent(in) :: key
+        real(wp), intent(out) :: var(:, :)
+        real(wp), intent(in) :: default
+        character(len=*), intent(in), optional :: unit, doc
+        real(wp) :: flat(size(var))
+        integer :: i
+        call self%declare(key, 'real(' // itoa(size(var, 1)) // ',' // itoa(size(var, 2)) // &
+            ')', real_text(default), '', unit, doc)
+        flat = default
+        i = self%find(key)
+        if (i /= 0) call self%convert_reals(self%items(i), flat, shape(var))
+        var = reshape(flat, shape(var))
+        call append_resolved(self, key, reals_text(flat))
+    end subroutine get_real_matrix
+
+    !> A list of reals of any length up to max_count (the length is what was given).
+    subroutine get_real_list(self, key, var, max_count, min, unit, doc)
+        class(nml_group_t), intent(inout) :: self
+        character(len=*), intent(in) :: key
+        real(wp), allocatable, intent(out) :: var(:)
+        integer, intent(in) :: max_count
+        real(wp), intent(in), optional :: min
+        character(len=*), intent(in), optional :: unit, doc
+        real(wp) :: buf(max_count)
+        logical :: given(max_count)
+        integer :: i, k, n
+        call self%declare(key, 'real list', 'none', range_text(min, null(), null(), null()), &
+            unit, doc)
+        buf = 0.0_wp
+        given = .false.
+        n = 0
+        i = self%find(key)
+        if (i /= 0) then
+            if (len(self%items(i)%subscript) > 0) then
+                call self%error(key, 'a list is given whole, without a subscript')
+            else if (size(self%items(i)%values) > max_count) then
+                call self%error(key, 'at most ' // itoa(max_count) // ' entries')
+            else if (any(self%items(i)%values%null)) then
+                call self%error(key, 'a list has no empty entries')
+            else
+                n = size(self%items(i)%values)
+                call self%convert_reals(self%items(i), buf(1:n), [n])
+            end if
+        end if
+        var = buf(1:n)
+        do k = 1, n
+            if (present(min)) then
+                if (.not. var(k) >= min) call self%error(key, real_text(var(k)) // &
+                    ' is out of range: must be ' // range_text(min, null(), null(), null()))
+            end if
+        end do
+        if (n == 0) then
+            self%resolved = self%resolved // '    ! ' // key // ' = (none)' // nl
+        else
+            call append_resolved(self, key, reals_text(var))
+        end if
+    end subroutine get_real_list
+
+    subroutine get_int(self, key, var, default, min, max, unit, doc)
+        class(nml_group_t), intent(inout) :: self
+        character(len=*), intent(in) :: key
+        integer, intent(out) :: var
+        integer, intent(in) :: default
+        integer, intent(in), optional :: min, max
+        character(len=*), intent(in), optional :: unit, doc
+        character(len=:), allocatable :: range
+        integer :: i, ios
+        range = ''
+        if (present(min)) range = '>= ' // itoa(min)
+        if (present(max)) then
+            if (len(range) > 0) range = range // ' and '
+            range = range // '<= ' // itoa(max)
+        end if
+        call self%declare(key, 'integer', itoa(default), range, unit, doc)
+        var = default
+        i = self%find(key)
+        if (i /= 0) then
+            if (single_value(self, i)) then
+                associate (v => self%items(i)%values(1))
+                    if (v%null) then
+                        continue
+                    else if (v%quoted) then
+                        call self%error(key, "'" // v%text // "' is not an integer")
+                    else
+                        read(v%text, *, iostat=ios) var
+                        if (ios /= 0) then
+                            call self%error(key, "'" // v%text // "' is not an integer")
+                            var = default
+                        end if
+                    end if
+                end associate
+            end if
+        end if
+        if (present(min)) then
+            if (var < min) call self%error(key, itoa(var) // ' is out of range: must be ' // &
+                range // unit_suffix(unit))
+        end if
+        if (present(max)) then
+            if (var > max) call self%error(key, itoa(var) // ' is out of range: must be ' // &
+                range // unit_suffix(unit))
+        end if
+        call append_resolved(self, key, itoa(var))
+    end subroutine get_int
+
+    subroutine get_logical(self, key, var, default, doc)
+        class(nml_group_t), intent(inout) :: self
+        character(len=*), intent(in) :: key
+        logical, intent(out) :: var
+        logical, intent(in) :: default
+        character(len=*), intent(in), optional :: doc
+        integer :: i, ios
+        call self%declare(key, 'logical', logical_text(default), '', doc=doc)
+        var = default
+        i = self%find(key)
+        if (i /= 0) then
+            if (single_value(self, i)) then
+                associate (v => self%items(i)%values(1))
+                    if (v%null) then
+                        continue
+                    else if (v%quoted) then
+                        call self%error(key, "'" // v%text // "' is not a logical")
+                    else
+                        read(v%text, *, iostat=ios) var
+                        if (ios /= 0) then
+                            call self%error(key, "'" // v%text // &
+                                "' is not a logical (.true. or .false.)")
+                            var = default
+                        end if
+                    end if
+                end associate
+            end if
+        end if
+        call append_resolved(self, key, logical_text(var))
+    end subroutine get_logical
+
+    !> A string; with choices, the value is compared and stored in lower case and must be one
+    !> of them.
+    subroutine get_string(self, key, var, default, choices, doc)
+        class(nml_group_t), intent(inout) :: self
+        character(len=*), intent(in) :: key
+        character(len=*), intent(out) :: var
+        character(len=*), intent(in) :: default
+        character(len=*), intent(in), optional :: choices(:)
+        character(len=*), intent(in), optional :: doc
+        character(len=len(var)) :: buf(1)
+        call self%get_string_array(key, buf, default, choices, doc, scalar=.true.)
+        var = buf(1)
+    end subroutine get_string
+
+    subroutine get_string_array(self, key, var, default, choices, doc, scalar)
+        class(nml_group_t), intent(inout) :: self
+        character(len=*), intent(in) :: key
+        character(len=*), intent(out) :: var(:)
+        character(len=*), intent(in) :: default
+        character(len=*), intent(in), optional :: choices(:)
+        character(len=*), intent(in), optional :: doc
+        logical, intent(in), optional :: scalar
+        integer :: i, k, n
+        integer, allocatable :: order(:)
+        character(len=:), allocatable :: range, shown
+        logical :: is_scalar
+        is_scalar = .false.
+        if (present(scalar)) is_scalar = scalar
+        range = ''
+        if (present(choices)) range = join(choices, "', '", "'") // "'"
+        if (is_scalar) then
+            call self%declare(key, 'string', "'" // default // "'", range, doc=doc)
+        else
+            call self%declare(key, 'string(' // itoa(size(var)) // ')', "'" // default // "'", &
+                range, doc=doc)
+        end if
+        var = default
+        i = self%find(key)
+        if (i /= 0) then
+            order = self%element_order(self%items(i), [size(var)])
+            n = min(size(order), size(self%items(i)%values))
+            do k = 1, n
+                associate (v => self%items(i)%values(k))
+                    if (v%null) cycle
+                    if (len(v%text) > len(var)) then
+                        call self%error(key, "'" // v%text // "' is longer than " // &
+                            itoa(len(var)) // ' characters')
+                        cycle
+                    end if
+                    var(order(k)) = v%text
+                end associate
+            end do
+        end if
+        if (present(choices)) then
+            do k = 1, size(var)
+                var(k) = to_lower(var(k))
+                if (any(var(k) == choices)) cycle
+                shown = key
+                if (.not. is_scalar) shown = key // '(' // itoa(k) // ')'
+                call self%error(shown, "'" // trim(var(k)) // "' is not one of " // range)
+            end do
+        end if
+        shown = ''
+        do k = 1, size(var)
+            if (k > 1) shown = shown // ', '
+            shown = shown // quote(trim(var(k)))
+        end do
+        call append_resolved(self, key, shown)
+    end subroutine get_string_array
+
+    ! ============================== helpers ==============================
+
+    logical function single_value(self, i)
+        class(nml_group_t), intent(inout) :: self
+        integer, intent(in) :: i
+        single_value = .false.
+        if (len(self%items(i)%subscript) > 0) then
+            call self%error(self%items(i)%key, 'a scalar takes no subscript')
+        else if (size(self%items(i)%values) /= 1) then
+            call self%error(self%items(i)%key, 'expects one value, got ' // &
+                itoa(size(self%items(i)%values)))
+        else
+            single_value = .true.
+        end if
+    end function single_value
+
+    !> Convert the tokens of one assignment into var (shape given, column-major), by the
+    !> list-directed read Fortran's namelist input uses.
+    subroutine convert_reals(self, item, var, shp)
+        class(nml_group_t), intent(inout) :: self
+        type(nml_item_t), intent(in) :: item
+        real(wp), intent(inout) :: var(:)
+        integer, intent(in) :: shp(:)
+        integer, allocatable :: order(:)
+        integer :: k, ios
+        real(wp) :: x
+        order = self%element_order(item, shp)
+        if (size(order) == 0) return
+        if (size(item%values) > size(order)) then
+            call self%error(item%key, itoa(size(item%values)) // ' values for ' // &
+                itoa(size(order)) // ' element(s)')
+            return
+        end if
+        do k = 1, size(item%values)
+            associate (v => item%values(k))
+                if (v%null) cycle
+                if (v%quoted) then
+                    call self%error(item%key, "'" // v%text // "' is not a real number")
+                    cycle
+                end if
+                read(v%text, *, iostat=ios) x
+                if (ios /= 0) then
+                    call self%error(item%key, "'" // v%text // "' is not a real number")
+                    cycle
+                end if
+                var(order(k)) = x
+            end associate
+        end do
+    end subroutine convert_reals
+
+    !> Element indices (column-major, 1-based) that the values of an assignment fill: all of
+    !> the array without a subscript; from one element on for `key(i,j)`; the section for
+    !> `key(lo:hi, j)`.
+    function element_order(self, item, shp) result(order)
+        class(nml_group_t), intent(inout) :: self
+        type(nml_item_t), intent(in) :: item
+        integer, intent(in) :: shp(:)
+        integer, allocatable :: order(:)
+        character(len=:), allocatable :: parts(:)
+        integer :: lo(size(shp)), hi(size(shp)), idx(size(shp)), d, c, ios, start, stride
+        logical :: section
+        allocate(order(0))
+        if (len(item%subscript) == 0) then
+            order = [(d, d = 1, product(shp))]
+            return
+        end if
+        call split_commas(item%subscript, parts)
+        if (size(parts) /= size(shp)) then
+            call self%error(item%key, '(' // item%subscript // ') needs ' // itoa(size(shp)) // &
+                ' subscript(s)')
+            return
+        end if
+        section = .false.
+        do d = 1, size(shp)
+            c = index(parts(d), ':')
+            if (c == 0) then
+                read(parts(d), *, iostat=ios) lo(d)
+                hi(d) = lo(d)
+            else
+                section = .true.
+                lo(d) = 1
+                hi(d) = shp(d)
+                ios = 0
+                if (len_trim(parts(d)(1:c - 1)) > 0) read(parts(d)(1:c - 1), *, iostat=ios) lo(d)
+                if (ios == 0 .and. len_trim(parts(d)(c + 1:)) > 0) &
+                    read(parts(d)(c + 1:), *, iostat=ios) hi(d)
+            end if
+            if (ios /= 0 .or. lo(d) < 1 .or. hi(d) > shp(d) .or. lo(d) > hi(d)) then
+                call self%error(item%key, '(' // item%subscript // ') is outside (' // &
+                    join_ints(shp) // ')')
+                return
+            end if
+        end do
+        if (.not. section) then   ! from this element on, in array element order
+            start = 1
+            stride = 1
+            do d = 1, size(shp)
+                start = start + (lo(d) - 1) * stride
+                stride = stride * shp(d)
+            end do
+            order = [(d, d = start, product(shp))]
+            return
+        end if
+        idx = lo
+        do
+            start = 1
+            stride = 1
+            do d = 1, size(shp)
+                start = start + (idx(d) - 1) * stride
+                stride = stride * shp(d)
+            end do
+            order = [order, start]
+            d = 1
+            do while (d <= size(shp))
+                if (idx(d) < hi(d)) exit
+                idx(d) = lo(d)
+                d = d + 1
+            end do
+            if (d > size(shp)) exit
+            idx(d) = idx(d) + 1
+        end do
+    end function element_order
+
+    !> `    key = value`, continued on further lines after a comma when it grows past 90
+    !> characters (namelist values may span lines).
+    subroutine append_resolved(self, key, value)
+        type(nml_group_t), intent(inout) :: self
+        character(len=*), intent(in) :: key, value
+        character(len=:), allocatable :: line
+        integer :: k, start, cut
+        logical :: in_quote
+        line = '    ' // key // ' = '
+        start = 1
+        cut = 0
+        in_quote = .false.
+        do k = 1, len(value)
+            if (value(k:k) == "'") in_quote = .not. in_quote
+            if (.not. in_quote .and. value(k:k) == ',') cut = k
+            if (len(line) + k - start + 1 > 90 .and. cut >= start) then
+                self%resolved = self%resolved // line // value(start:cut) // nl
+                line = '        '
+                start = cut + 2
+            end if
+        end do
+        self%resolved = self%resolved // line // value(start:) // nl
+    end subroutine append_resolved
+
+    !> Shortest decimal text that reads back to exactly x (at most 17 significant digits).
+    function real_text(x) result(text)
+        real(wp), intent(in) :: x
+        character(len=:), allocatable :: text
+        character(len=40) :: buf
+        character(len=16) :: fmt
+        real(wp) :: back
+        integer :: d, e, ex
+        if (x == 0.0_wp) then
+            text = '0.0'
+            if (sign(1.0_wp, x) < 0.0_wp) text = '-0.0'
+            return
+        end if
+        if (abs(x) < 1.0e15_wp .and. abs(x) >= 1.0_wp) then
+            if (x == aint(x)) then
+                write(buf, '(f0.1)') x
+                text = trim(adjustl(buf))
+                return
+            end if
+        end if
+        do d = 0, 16
+            write(fmt, '(a, i0, a)') '(es40.', d, 'e3)'
+            write(buf, fmt) x
+            if (abs(x) > 1.0e300_wp) cycle   ! a shorter form may round past huge()
+            read(buf, *) back
+            if (back == x) exit
+        end do
+        d = min(d, 16)
+        buf = adjustl(buf)
+        e = index(buf, 'E')
+        read(buf(e + 1:), *) ex
+        if (ex >= -4 .and. ex < 15) then   ! positional form with the same digits
+            write(fmt, '(a, i0, a)') '(f40.', max(1, d - ex), ')'
+            write(buf, fmt) x
+            text = trim(adjustl(buf))
+            read(text, *) back
+            if (back == x) return
+            write(fmt, '(a, i0, a)') '(es40.', d, 'e3)'
+            write(buf, fmt) x
+            buf = adjustl(buf)
+        end if
+        ! exponent form, tidied: 2.5E-005 -> 2.5e-5
+        text = buf(1:e - 1)
+        if (index(text, '.') == len(text)) text = text // '0'
+        text = text // 'e' // itoa(ex)
+    end function real_text
+
+    function reals_text(x) result(text)
+        real(wp), intent(in) :: x(:)
+        character(len=:), allocatable :: text
+        integer :: k
+        text = ''
+        do k = 1, size(x)
+            if (k > 1) text = text // ', '
+            text = text // real_text(x(k))
+        end do
+    end function reals_text
+
+    function range_text(min, max, min_exclusive, max_exclusive) result(text)
+        real(wp), intent(in), optional :: min, max, min_exclusive, max_exclusive
+        character(len=:), allocatable :: text
+        text = ''
+        if (present(min)) text = '>= ' // real_text(min)
+        if (present(min_exclusive)) text = '> ' // real_text(min_exclusive)
+        if (present(max) .or. present(max_exclusive)) then
+            if (len(text) > 0) text = text // ' and '
+            if (present(max)) text = text // '<= ' // real_text(max)
+            if (present(max_exclusive)) text = text // '< ' // real_text(max_exclusive)
+        end if
+    end function range_text
+
+    function unit_suffix(unit) result(text)
+        character(len=*), intent(in), optional :: unit
+        character(len=:), allocatable :: text
+        text = ''
+        if (present(unit)) then
+            if (len(unit) > 0) text = ' (' // unit // ')'
+        end if
+    end function unit_suffix
+
+    function logical_text(x) result(text)
+        logical, intent(in) :: x
+        character(len=:), allocatable :: text
+        text = merge('.true. ', '.false.', x)
+        text = trim(text)
+    end function logical_text
+
+    !> A quoted string, inner quotes doubled.
+    function quote(s) result(text)
+        character(len=*), intent(in) :: s
+        character(len=:), allocatable :: text
+        integer :: k
+        text = "'"
+        do k = 1, len(s)
+            if (s(k:k) == "'") text = text // "'"
+            text = text // s(k:k)
+        end do
+        text = text // "'"
+    end function quote
+
+    !> "; did you mean 'x'?" for the closest name within a small edit distance, else ''.
+    function suggestion(name, names) result(text)
+        character(len=*), intent(in) :: name
+        character(len=*), intent(in) :: names(:)
+        character(len=:), allocatable :: text
+        integer :: k, best, dist, best_k
+        text = ''
+        best = huge(1)
+        best_k = 0
+        do k = 1, size(names)
+            dist = edit_distance(name, trim(names(k)))
+            if (dist < best) then
+                best = dist
+                best_k = k
+            end if
+        end do
+        if (best_k > 0 .and. best <= max(1, len(name) / 3)) &
+            text = "; did you mean '" // trim(names(best_k)) // "'?"
+    end function suggestion
+
+    pure integer function edit_distance(a, b) result(dist)
+        character(len=*), intent(in) :: a, b
+        integer :: row(0:len(b)), prev, tmp, i, j
+        row = [(j, j = 0, len(b))]
+        do i = 1, len(a)
+            prev = row(0)
+            row(0) = i
+            do j = 1, len(b)
+                tmp = row(j)
+                row(j) = min(row(j) + 1, row(j - 1) + 1, &
+                    prev + merge(0, 1, a(i:i) == b(j:j)))
+                prev = tmp
+            end do
+        end do
+        dist = row(len(b))
+    end function edit_distance
+
+    function join(names, sep, lead) result(text)
+        character(len=*), intent(in) :: names(:), sep, lead
+        character(len=:), allocatable :: text
+        integer :: k
+        text = lead
+        do k = 1, size(names)
+            if (k > 1) text = text // sep
+            text = text // trim(names(k))
+        end do
+    end function join
+
+    function join_ints(v) result(text)
+        integer, intent(in) :: v(:)
+        character(len=:), allocatable :: text
+        integer :: k
+        text = ''
+        do k = 1, size(v)
+            if (k > 1) text = text // ','
+            text = text // itoa(v(k))
+        end do
+    end function join_ints
+
+    subroutine split_commas(text, parts)
+        character(len=*), intent(in) :: text
+        character(len=:), allocatable, intent(out) :: parts(:)
+        integer :: n, k, start, c
+        n = 1
+        do k = 1, len(text)
+            if (text(k:k) == ',') n = n + 1
+        end do
+        allocate(character(len=max(len(text), 1)) :: parts(n))
+        start = 1
+        do k = 1, n
+            c = index(text(start:), ',')
+            if (c == 0) then
+                parts(k) = text(start:)
+            else
+                parts(k) = text(start:start + c - 2)
+                start = start + c
+            end if
+        end do
+    end subroutine split_commas
+
+    function itoa(i) result(text)
+        integer, intent(in) :: i
+        character(len=:), allocatable :: text
+        character(len=16) :: buf
+        write(buf, '(i0)') i
+        text = trim(buf)
+    end function itoa
+
+    pure function to_lower(s) result(out)
+        character(len=*), intent(in) :: s
+        character(len=len(s)) :: out
+        integer :: k
+        out = s
+        do k = 1, len(s)
+            if (s(k:k) >= 'A' .and. s(k:k) <= 'Z') out(k:k) = achar(iachar(s(k:k)) + 32)
+        end do
+    end function to_lower
+end module sph_namelist

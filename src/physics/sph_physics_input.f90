@@ -1,0 +1,102 @@
+!> The physics as read from input: &fluid (material, equation of state and the scales of
+!> Morris' sound-speed criterion) and &numerics (kernel, discretisation choices, wall model,
+!> time-step safety factors). Read by sph_config; turned into physics_t by sph_physics.
+module sph_physics_input
+    use sph_kinds, only: wp
+    use sph_namelist, only: nml_group_t
+    implicit none
+    private
+    public :: fluid_input_t, numerics_input_t, read_fluid_input, read_numerics_input
+
+    integer, parameter :: name_len = 32
+
+    type :: fluid_input_t
+        real(wp) :: rho0, nu, body_force(3)
+        character(len=name_len) :: eos
+        real(wp) :: sound_speed           !< 0 = Morris' criterion
+        real(wp) :: tait_gamma, density_variation
+        real(wp) :: velocity_scale        !< 0 = estimated from walls and body force
+        real(wp) :: length_scale          !< 0 = smallest wall-to-wall distance or box size
+    end type fluid_input_t
+
+    type :: numerics_input_t
+        character(len=name_len) :: kernel
+        real(wp) :: h_factor              !< h = h_factor * dx; 0 = kernel's default
+        character(len=name_len) :: density_method, viscosity_model, viscosity_normalisation
+        character(len=name_len) :: wall_model
+        real(wp) :: cfl, viscous_safety, force_safety, beta_max
+        real(wp) :: repulsive_strength    !< D of eq. 2.18; 0 = velocity_scale**2
+        real(wp) :: repulsive_r0          !< r0 of eq. 2.18; 0 = dx/2
+        integer :: repulsive_n1, repulsive_n2
+    end type numerics_input_t
+
+contains
+
+    subroutine read_fluid_input(grp, fl)
+        type(nml_group_t), intent(inout) :: grp
+        type(fluid_input_t), intent(out) :: fl
+        call grp%get_real('rho0', fl%rho0, 1000.0_wp, min_exclusive=0.0_wp, unit='kg/m^3', &
+            doc='rest density')
+        call grp%get_real('nu', fl%nu, 1.0e-6_wp, min=0.0_wp, unit='m^2/s', &
+            doc='kinematic viscosity')
+        call grp%get_real_array('body_force', fl%body_force, 0.0_wp, unit='m/s^2', &
+            doc='body force per unit mass')
+        call grp%get_string('eos', fl%eos, 'morris_relative', &
+            choices=[character(len=16) :: 'morris', 'morris_relative', 'tait'], &
+            doc='equation of state')
+        call grp%get_real('sound_speed', fl%sound_speed, 0.0_wp, min=0.0_wp, unit='m/s', &
+            doc="0 = Morris' criterion")
+        call grp%get_real('tait_gamma', fl%tait_gamma, 7.0_wp, min=1.0_wp, &
+            doc='exponent of the Tait equation')
+        call grp%get_real('density_variation', fl%density_variation, 0.01_wp, &
+            min_exclusive=0.0_wp, max_exclusive=1.0_wp, &
+            doc="delta in Morris' sound-speed criterion")
+        call grp%get_real('velocity_scale', fl%velocity_scale, 0.0_wp, min=0.0_wp, &
+            unit='m/s', doc='V for the criterion; 0 = estimated')
+        call grp%get_real('length_scale', fl%length_scale, 0.0_wp, min=0.0_wp, unit='m', &
+            doc='L for the criterion; 0 = narrowest gap or smallest box side')
+    end subroutine read_fluid_input
+
+    subroutine read_numerics_input(grp, num)
+        type(nml_group_t), intent(inout) :: grp
+        type(numerics_input_t), intent(out) :: num
+        call grp%get_string('kernel', num%kernel, 'cubic', &
+            choices=[character(len=12) :: 'cubic', 'quintic', 'wendland_c2'], &
+            doc='smoothing kernel')
+        call grp%get_real('h_factor', num%h_factor, 0.0_wp, min=0.0_wp, &
+            doc='h = h_factor dx; 0 = kernel default')
+        call grp%get_string('density_method', num%density_method, 'continuity', &
+            choices=[character(len=12) :: 'continuity', 'summation'], &
+            doc='integrated continuity equation or summation')
+        call grp%get_string('viscosity_model', num%viscosity_model, 'morris', &
+            choices=[character(len=12) :: 'morris', 'strain_rate'], doc='viscous term')
+        call grp%get_string('viscosity_normalisation', num%viscosity_normalisation, &
+            'lattice', choices=[character(len=8) :: 'lattice', 'none'], &
+            doc="normalise Morris' viscous term by its lattice second moment")
+        call grp%get_string('wall_model', num%wall_model, 'morris', &
+            choices=[character(len=16) :: 'morris', 'repulsive', 'mirror', 'repulsive_mirror'], &
+            doc='wall boundary model')
+        call grp%get_real('cfl', num%cfl, 0.25_wp, min_exclusive=0.0_wp, max=1.0_wp, &
+            doc='safety factor of the CFL time-step limit')
+        call grp%get_real('viscous_safety', num%viscous_safety, 0.125_wp, &
+            min_exclusive=0.0_wp, max=0.5_wp, doc='safety factor of the viscous limit')
+        call grp%get_real('force_safety', num%force_safety, 0.25_wp, min_exclusive=0.0_wp, &
+            max=1.0_wp, doc='safety factor of the force limit')
+        call grp%get_real('beta_max', num%beta_max, 10.0_wp, min=1.0_wp, &
+            doc="cap of Morris' wall-velocity extrapolation factor")
+        call grp%get_real('repulsive_strength', num%repulsive_strength, 0.0_wp, min=0.0_wp, &
+            unit='m^2/s^2', doc='D of eq. 2.18; 0 = velocity_scale^2')
+        call grp%get_real('repulsive_r0', num%repulsive_r0, 0.0_wp, min=0.0_wp, unit='m', &
+            doc='r0 of eq. 2.18; 0 = dx/2')
+        call grp%get_int('repulsive_n1', num%repulsive_n1, 12, min=2, &
+            doc='exponent n1 of eq. 2.18 (> n2)')
+        call grp%get_int('repulsive_n2', num%repulsive_n2, 4, min=1, &
+            doc='exponent n2 of eq. 2.18 (>= 1)')
+        if (num%repulsive_n1 <= num%repulsive_n2) &
+            call grp%error('repulsive_n1, repulsive_n2', 'need n1 > n2 >= 1')
+        if (trim(num%viscosity_model) == 'strain_rate' .and. &
+            (trim(num%wall_model) == 'mirror' .or. trim(num%wall_model) == 'repulsive_mirror')) &
+            call grp%error('viscosity_model', "'strain_rate' works with wall_model = " // &
+                "'morris' only (mirror images do not carry a consistent strain rate)")
+    end subroutine read_numerics_input
+end module sph_physics_input
