@@ -12,7 +12,8 @@ module sph_simulation
     use sph_physics, only: physics_t, physics_from_config, DENSITY_SUMMATION, &
         VISCOSITY_STRAIN_RATE, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR
     use sph_kernel, only: kernel_name
-    use sph_walls, only: wall_geometry_t, wall_geometry_from_config, build_mirrors, wall_layers
+    use sph_walls, only: solids_from_config, build_mirrors, wall_layers
+    use sph_solids, only: solids_t
     use sph_domain, only: domain_t, domain_create, domain_partition, migrate_particles, &
         domain_imbalance
     use sph_halo, only: halo_t, halo_setup, halo_build, halo_refresh
@@ -38,7 +39,7 @@ module sph_simulation
     type :: simulation_t
         type(config_t) :: cfg
         type(physics_t) :: phys
-        type(wall_geometry_t) :: geo
+        type(solids_t) :: solids   !< walls and bodies
         type(domain_t) :: domain
         type(halo_t) :: halo
         type(particles_t) :: p
@@ -79,7 +80,7 @@ contains
                     'kernel support radius (&domain box_lo/box_hi, &domain dx, &numerics h_factor)')
             end if
         end do
-        sim%geo = wall_geometry_from_config(cfg)
+        sim%solids = solids_from_config(cfg)
         periodic = .false.
         do axis = 1, cfg%domain%dimension
             periodic(axis) = cfg%domain%is_periodic(axis)
@@ -100,7 +101,7 @@ contains
         type(mpi_env_t), intent(in) :: env
         type(config_t), intent(in) :: cfg
         call setup_common(sim, env, cfg)
-        call create_lattice_particles(cfg, sim%phys, sim%geo, sim%domain, sim%p)
+        call create_lattice_particles(cfg, sim%phys, sim%solids, sim%domain, sim%p)
         ! balance by particle count (walls included: they cost work too)
         call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
         call migrate_particles(sim%domain, env, sim%p)
@@ -216,7 +217,7 @@ contains
     !> support + list_skin, so it stays complete while no pair closes in by more than the skin.
     subroutine refresh_neighbours(sim)
         type(simulation_t), intent(inout) :: sim
-        call build_mirrors(sim%phys, sim%geo, sim%p)
+        call build_mirrors(sim%phys, sim%solids, sim%p)
         call build_neighbour_list(sim%p%x, sim%p%n_total, sim%p%n_owned, sim%p%dim, &
             sim%phys%kernel%support + sim%list_skin, sim%nl)
     end subroutine refresh_neighbours
@@ -229,13 +230,13 @@ contains
         if (sim%phys%density_method == DENSITY_SUMMATION) then
             call compute_summation_density(sim%phys, sim%p, sim%nl)
             call halo_refresh(sim%halo, env, sim%p, HALO_DENSITY)
-            call build_mirrors(sim%phys, sim%geo, sim%p)
+            call build_mirrors(sim%phys, sim%solids, sim%p)
         end if
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
         if (sim%phys%viscosity == VISCOSITY_STRAIN_RATE) then
             call compute_strain_rate(sim%phys, sim%p, sim%nl)
             call halo_refresh(sim%halo, env, sim%p, HALO_STRAIN)
-            call build_mirrors(sim%phys, sim%geo, sim%p)
+            call build_mirrors(sim%phys, sim%solids, sim%p)
         end if
         call compute_rates(sim%phys, sim%p, sim%nl)
     end subroutine evaluate_rates

@@ -1,53 +1,56 @@
-!> Solid walls of the box. Three kinds of boundary particle, chosen by &numerics wall_model:
-!>  - Morris et al. (1997) no-slip wall particles: layers outside each wall face filling the
-!>    kernel support, taking part in every SPH sum; in the viscous term their velocity is
-!>    extrapolated across the wall (beta factor, see sph_rates). Corners are filled too.
+!> Solid walls as particles. Three kinds of boundary particle, chosen by &numerics wall_model,
+!> all made from the solids (sph_solids: signed distance, normal and velocity at a point):
+!>  - Morris et al. (1997) no-slip wall particles: lattice sites inside a solid, to one kernel
+!>    support of depth, taking part in every SPH sum; in the viscous term their velocity is
+!>    extrapolated across the wall (beta factor, see sph_rates). Corners are filled too: a
+!>    site belongs to the solid it lies deepest inside.
 !>  - thesis type-1 particles: one layer on the wall plane exerting only the repulsive force
 !>    of eq. 2.18.
-!>  - thesis type-2 particles: mirror images of the fluid particles near a wall, rebuilt at
+!>  - thesis type-2 particles: mirror images of the fluid particles near a solid, rebuilt at
 !>    every stage with the same density and pressure and the velocity 2 u_wall - v.
-!> Wall particles carry their wall's velocity but stay in place (a belt), which serves both a
+!> Wall particles carry their solid's velocity but stay in place (a belt), which serves both a
 !> sliding plate (Couette) and a lid.
 module sph_walls
     use sph_kinds, only: wp
-    use sph_config, only: config_t, n_faces
+    use sph_config, only: config_t, n_faces, face_names
     use sph_particles, only: particles_t, particles_reserve, KIND_FLUID, KIND_MIRROR
     use sph_physics, only: physics_t, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR
+    use sph_solids, only: solids_t, solid_t, solids_add_plane, solid_distance, solid_normal, &
+        solid_velocity, solid_reflect, deepest_solid
     implicit none
     private
-    public :: wall_geometry_t, wall_geometry_from_config, wall_layers, wall_lattice_ranges
-    public :: wall_site, build_mirrors
-
-    type :: wall_geometry_t
-        integer :: dim = 2
-        logical :: is_wall(n_faces) = .false.
-        real(wp) :: plane(n_faces) = 0.0_wp          !< coordinate of the face along its axis
-        real(wp) :: velocity(3, n_faces) = 0.0_wp
-        real(wp) :: lo(3) = 0.0_wp, hi(3) = 0.0_wp
-    end type wall_geometry_t
+    public :: solids_from_config, wall_layers, wall_lattice_ranges, wall_site, build_mirrors
 
 contains
 
-    function wall_geometry_from_config(cfg) result(geo)
+    !> The solids of a configuration: the half-space behind every box face that is a wall,
+    !> in face order (xlo, xhi, ylo, yhi, zlo, zhi).
+    function solids_from_config(cfg) result(solids)
         type(config_t), intent(in) :: cfg
-        type(wall_geometry_t) :: geo
-        integer :: f, axis
-        geo%dim = cfg%domain%dimension
-        geo%lo = cfg%domain%box_lo
-        geo%hi = cfg%domain%box_hi
-        do f = 1, 2 * cfg%domain%dimension
+        type(solids_t) :: solids
+        integer :: f, axis, dim
+        real(wp) :: point(3), normal(3), velocity(3)
+        dim = cfg%domain%dimension
+        solids%dim = dim
+        allocate(solids%list(0))
+        do f = 1, 2 * dim
+            if (.not. cfg%domain%is_wall(f)) cycle
             axis = (f + 1) / 2
-            geo%is_wall(f) = cfg%domain%is_wall(f)
+            point = 0.0_wp
+            normal = 0.0_wp
             if (mod(f, 2) == 1) then
-                geo%plane(f) = cfg%domain%box_lo(axis)
+                point(axis) = cfg%domain%box_lo(axis)
+                normal(axis) = 1.0_wp
             else
-                geo%plane(f) = cfg%domain%box_hi(axis)
+                point(axis) = cfg%domain%box_hi(axis)
+                normal(axis) = -1.0_wp
             end if
-            geo%velocity(:, f) = 0.0_wp
-            geo%velocity(1:cfg%domain%dimension, f) = &
-                cfg%domain%wall_velocity(1:cfg%domain%dimension, f)
+            velocity = 0.0_wp
+            velocity(1:dim) = cfg%domain%wall_velocity(1:dim, f)
+            call solids_add_plane(solids, 'wall ' // trim(face_names(f)), point, normal, &
+                velocity, face=f)
         end do
-    end function wall_geometry_from_config
+    end function solids_from_config
 
     !> Layers of Morris wall particles needed to fill the kernel support.
     integer function wall_layers(phys)
@@ -72,52 +75,37 @@ contains
         end do
     end subroutine wall_lattice_ranges
 
-    !> For lattice cell idx of the extended lattice: is it a wall site, and its face, normal
-    !> (into the fluid) and distance behind the wall plane. The face is the one the site lies
-    !> deepest behind (ties: the lower axis), so each corner site belongs to exactly one face.
-    pure subroutine wall_site(geo, n_inside, idx, dx, is_site, face, normal, distance)
-        type(wall_geometry_t), intent(in) :: geo
-        integer, intent(in) :: n_inside(3), idx(3)
-        real(wp), intent(in) :: dx
+    !> Is the point x (a lattice site) inside a solid, and if so which (the one it lies
+    !> deepest inside; ties, as on a corner diagonal, go to the lower number), the normal into
+    !> the fluid and the distance behind the surface. dx sets the tie tolerance.
+    pure subroutine wall_site(solids, x, dx, is_site, solid, normal, distance)
+        type(solids_t), intent(in) :: solids
+        real(wp), intent(in) :: x(3), dx
         logical, intent(out) :: is_site
-        integer, intent(out) :: face
+        integer, intent(out) :: solid
         real(wp), intent(out) :: normal(3), distance
-        integer :: axis, depth, best
-        best = 0
-        face = 0
-        do axis = 1, geo%dim
-            depth = 0
-            if (idx(axis) < 1) then
-                depth = 1 - idx(axis)
-                if (depth > best) then
-                    best = depth; face = 2*axis - 1
-                end if
-            else if (idx(axis) > n_inside(axis)) then
-                depth = idx(axis) - n_inside(axis)
-                if (depth > best) then
-                    best = depth; face = 2*axis
-                end if
-            end if
-        end do
-        is_site = best > 0
+        solid = deepest_solid(solids, x, 1.0e-6_wp * dx)
+        is_site = solid > 0
         normal = 0.0_wp
         distance = 0.0_wp
         if (is_site) then
-            axis = (face + 1) / 2
-            normal(axis) = merge(1.0_wp, -1.0_wp, mod(face, 2) == 1)
-            distance = (real(best, wp) - 0.5_wp) * dx
+            normal = solid_normal(solids%list(solid), x)
+            distance = -solid_distance(solids%list(solid), x)
         end if
     end subroutine wall_site
 
     !> Append type-2 mirror images of the fluid particles (owned and ghosts) lying within the
-    !> kernel support of a wall, across each such wall and across pairs/triples of walls at
-    !> corners. Mirrors go after the ghosts and are rebuilt whenever the ghosts change.
-    subroutine build_mirrors(phys, geo, p)
+    !> kernel support of a solid: across each such solid, and across every combination of
+    !> such solids with non-parallel surfaces (corners). Mirrors go after the ghosts and are
+    !> rebuilt whenever the ghosts change.
+    subroutine build_mirrors(phys, solids, p)
         type(physics_t), intent(in) :: phys
-        type(wall_geometry_t), intent(in) :: geo
+        type(solids_t), intent(in) :: solids
         type(particles_t), intent(inout) :: p
-        integer :: k, axis, n_near, subset, bit, f, n_sources, faces(3), n
+        integer, parameter :: max_near = 3
+        integer :: k, s, n_near, subset, bit, other, n_sources, near(max_near), n
         real(wp) :: xm(3), vm(3), reach
+        logical :: combinable
 
         p%n_total = p%n_owned + p%n_ghost
         if (phys%walls /= WALLS_MIRROR .and. phys%walls /= WALLS_REPULSIVE_MIRROR) return
@@ -126,27 +114,35 @@ contains
         do k = 1, n_sources
             if (p%kind(k) /= KIND_FLUID) cycle
             n_near = 0
-            do axis = 1, geo%dim
-                f = 0
-                if (geo%is_wall(2*axis - 1) .and. p%x(axis, k) - geo%plane(2*axis - 1) < reach) then
-                    f = 2*axis - 1
-                else if (geo%is_wall(2*axis) .and. geo%plane(2*axis) - p%x(axis, k) < reach) then
-                    f = 2*axis
-                end if
-                if (f > 0) then
+            do s = 1, size(solids%list)
+                if (n_near == max_near) exit
+                if (solid_distance(solids%list(s), p%x(:, k)) < reach) then
                     n_near = n_near + 1
-                    faces(n_near) = f
+                    near(n_near) = s
                 end if
             end do
             do subset = 1, 2**n_near - 1
+                ! parallel surfaces (the two walls of a narrow channel) are mirrored apart,
+                ! never composed: that image would be a translated copy
+                combinable = .true.
+                do bit = 1, n_near
+                    if (.not. btest(subset, bit - 1)) cycle
+                    do other = bit + 1, n_near
+                        if (.not. btest(subset, other - 1)) cycle
+                        if (abs(dot_product(solids%list(near(bit))%normal, &
+                            solids%list(near(other))%normal)) > 1.0_wp - 1.0e-12_wp) &
+                            combinable = .false.
+                    end do
+                end do
+                if (.not. combinable) cycle
                 xm = p%x(:, k)
                 vm = p%v(:, k)
                 do bit = 1, n_near
                     if (.not. btest(subset, bit - 1)) cycle
-                    f = faces(bit)
-                    axis = (f + 1) / 2
-                    xm(axis) = 2.0_wp * geo%plane(f) - xm(axis)
-                    vm = 2.0_wp * geo%velocity(:, f) - vm
+                    associate (solid => solids%list(near(bit)))
+                        vm = 2.0_wp * solid_velocity(solid, xm) - vm
+                        xm = solid_reflect(solid, xm)
+                    end associate
                 end do
                 n = p%n_total + 1
                 call particles_reserve(p, n)
@@ -164,6 +160,7 @@ contains
                 p%id(n) = -p%id(k)
                 p%kind(n) = KIND_MIRROR
                 p%level(n) = p%level(k)
+                p%solid(n) = near(1)
                 p%n_total = n
             end do
         end do

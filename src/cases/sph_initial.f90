@@ -1,12 +1,14 @@
-!> Initial particles: fluid at rest on a lattice of spacing dx filling the box, and the wall
-!> particles of the chosen wall model. Each rank makes only the particles its subdomain owns;
+!> Initial particles: fluid at rest on a lattice of spacing dx filling the box minus the
+!> solids, and the wall particles of the chosen wall model (Morris: the lattice sites inside a
+!> solid to one kernel support of depth, behind the box faces and inside bodies alike). Each rank makes only the particles its subdomain owns;
 !> global ids come from lattice indices, so they do not depend on the rank count.
 module sph_initial
     use sph_kinds, only: wp, i8
     use sph_config, only: config_t
     use sph_particles, only: particles_t, particles_reserve, KIND_FLUID, KIND_WALL
     use sph_physics, only: physics_t, WALLS_MORRIS, WALLS_REPULSIVE, WALLS_REPULSIVE_MIRROR
-    use sph_walls, only: wall_geometry_t, wall_layers, wall_lattice_ranges, wall_site
+    use sph_walls, only: wall_layers, wall_lattice_ranges, wall_site
+    use sph_solids, only: solids_t, solid_velocity, deepest_solid
     use sph_domain, only: domain_t, domain_owner
     use sph_eos, only: eos_pressure
     implicit none
@@ -15,13 +17,13 @@ module sph_initial
 
 contains
 
-    subroutine create_lattice_particles(cfg, phys, geo, domain, p)
+    subroutine create_lattice_particles(cfg, phys, solids, domain, p)
         type(config_t), intent(in) :: cfg
         type(physics_t), intent(in) :: phys
-        type(wall_geometry_t), intent(in) :: geo
+        type(solids_t), intent(in) :: solids
         type(domain_t), intent(in) :: domain
         type(particles_t), intent(inout) :: p
-        integer :: n_inside(3), first(3), last(3), idx(3), i, j, k, face, layers, axis
+        integer :: n_inside(3), first(3), last(3), idx(3), i, j, k, solid, layers, axis
         integer(i8) :: n_fluid_total, n_ext(3), linear
         real(wp) :: xi(3), normal(3), distance, mass
         logical :: site
@@ -41,14 +43,16 @@ contains
                     idx = [i, j, k]
                     xi = lattice_position(idx)
                     if (domain_owner(domain, xi) /= domain%rank) cycle
+                    ! the lattice minus the solids (bodies inside the box)
+                    if (deepest_solid(solids, xi, 0.0_wp) > 0) cycle
                     linear = 1 + (i - 1) + int(n_inside(1), i8) * ((j - 1) + int(n_inside(2), &
                         i8) * (k - 1))
                     call add_particle(xi, linear, KIND_FLUID, [0.0_wp, 0.0_wp, 0.0_wp], 0.0_wp, &
-                        [0.0_wp, 0.0_wp, 0.0_wp])
+                        [0.0_wp, 0.0_wp, 0.0_wp], 0)
                 end do
             end do
         end do
-        ! Morris wall particles: every extended-lattice site behind a wall
+        ! Morris wall particles: every extended-lattice site inside a solid
         if (phys%walls == WALLS_MORRIS) then
             layers = wall_layers(phys)
             call wall_lattice_ranges(cfg, layers, first, last)
@@ -57,15 +61,15 @@ contains
                 do j = first(2), last(2)
                     do i = first(1), last(1)
                         idx = [i, j, k]
-                        call wall_site(geo, n_inside, idx, cfg%domain%dx, site, face, normal, &
-                            distance)
-                        if (.not. site) cycle
                         xi = lattice_position(idx)
+                        call wall_site(solids, xi, cfg%domain%dx, site, solid, normal, distance)
+                        if (.not. site) cycle
+                        if (distance > layers * cfg%domain%dx) cycle   ! deeper than the support
                         if (domain_owner(domain, xi) /= domain%rank) cycle
                         linear = n_fluid_total + 1 + (i - first(1)) + n_ext(1) * ((j - first(2)) + &
                             n_ext(2) * (k - first(3)))
-                        call add_particle(xi, linear, KIND_WALL, normal, distance, geo%velocity(:, &
-                            face))
+                        call add_particle(xi, linear, KIND_WALL, normal, distance, &
+                            solid_velocity(solids%list(solid), xi), solid)
                     end do
                 end do
             end do
@@ -87,10 +91,10 @@ contains
                 (real(ix(1:cfg%domain%dimension), wp) - 0.5_wp) * cfg%domain%dx
         end function lattice_position
 
-        subroutine add_particle(x, id, kind, wall_normal, wall_distance, velocity)
+        subroutine add_particle(x, id, kind, wall_normal, wall_distance, velocity, solid_index)
             real(wp), intent(in) :: x(3), wall_normal(3), wall_distance, velocity(3)
             integer(i8), intent(in) :: id
-            integer, intent(in) :: kind
+            integer, intent(in) :: kind, solid_index
             integer :: n
             n = p%n_owned + 1
             call particles_reserve(p, n)
@@ -110,6 +114,7 @@ contains
             p%id(n) = id
             p%kind(n) = kind
             p%level(n) = 0
+            p%solid(n) = solid_index
             p%n_owned = n
             p%n_total = n
         end subroutine add_particle
@@ -117,32 +122,33 @@ contains
         !> Sites on each wall plane at the tangential lattice positions (corners skipped).
         subroutine add_type1_layers(id_base)
             integer(i8), intent(in) :: id_base
-            integer :: f, ax, t1, t2, a, b, na, nb
+            integer :: s, ax, t1, t2, a, b, na, nb
             integer(i8) :: id
-            real(wp) :: x(3), nrm(3)
+            real(wp) :: x(3)
             id = id_base + 1000000000_i8   ! clear of every fluid id
-            do f = 1, 2 * cfg%domain%dimension
-                if (.not. geo%is_wall(f)) cycle
-                ax = (f + 1) / 2
-                t1 = merge(2, 1, ax == 1)
-                t2 = 6 - ax - t1
-                na = n_inside(t1)
-                nb = 1
-                if (cfg%domain%dimension == 3) nb = n_inside(t2)
-                nrm = 0.0_wp
-                nrm(ax) = merge(1.0_wp, -1.0_wp, mod(f, 2) == 1)
-                do b = 1, nb
-                    do a = 1, na
-                        id = id + 1
-                        x = 0.0_wp
-                        x(ax) = geo%plane(f)
-                        x(t1) = cfg%domain%box_lo(t1) + (real(a, wp) - 0.5_wp) * cfg%domain%dx
-                        if (cfg%domain%dimension == 3) x(t2) = cfg%domain%box_lo(t2) + (real(b, &
-                            wp) - 0.5_wp) * cfg%domain%dx
-                        if (domain_owner(domain, x) /= domain%rank) cycle
-                        call add_particle(x, id, KIND_WALL, nrm, 0.0_wp, geo%velocity(:, f))
+            do s = 1, size(solids%list)
+                associate (plane => solids%list(s))
+                    ax = (plane%face + 1) / 2
+                    t1 = merge(2, 1, ax == 1)
+                    t2 = 6 - ax - t1
+                    na = n_inside(t1)
+                    nb = 1
+                    if (cfg%domain%dimension == 3) nb = n_inside(t2)
+                    do b = 1, nb
+                        do a = 1, na
+                            id = id + 1
+                            x = 0.0_wp
+                            x(ax) = plane%point(ax)
+                            x(t1) = cfg%domain%box_lo(t1) + (real(a, wp) - 0.5_wp) * &
+                                cfg%domain%dx
+                            if (cfg%domain%dimension == 3) x(t2) = cfg%domain%box_lo(t2) + &
+                                (real(b, wp) - 0.5_wp) * cfg%domain%dx
+                            if (domain_owner(domain, x) /= domain%rank) cycle
+                            call add_particle(x, id, KIND_WALL, plane%normal, 0.0_wp, &
+                                plane%velocity, s)
+                        end do
                     end do
-                end do
+                end associate
             end do
         end subroutine add_type1_layers
     end subroutine create_lattice_particles

@@ -15,7 +15,8 @@ module sph_snapshot
     use sph_mpi_env, only: mpi_env_t, global_max, broadcast_text
     use sph_errors, only: fatal_collective, fatal_abort
     use sph_particles, only: particles_t, particles_reserve, particles_visit, field_list, &
-        field_info_t, field_op_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL, FIELD_SNAPSHOT
+        field_info_t, field_op_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL, FIELD_SNAPSHOT, &
+        FIELD_OPTIONAL
     use sph_hdf5, only: h5_file_t, h5_create, h5_open_read, h5_close, h5_group_create, &
         h5_row_layout, h5_write_rows, h5_read_rows, h5_dataset_rows, h5_write_attribute, &
         h5_read_attribute
@@ -379,6 +380,9 @@ contains
         fields = field_list(p)
         do k = 1, size(fields)
             if (iand(fields(k)%flags, selection) == 0) cycle
+            ! an optional field may be absent (older files, files made by users)
+            if (iand(fields(k)%flags, FIELD_OPTIONAL) /= 0 .and. &
+                h5_dataset_rows(file, 'particles/' // trim(fields(k)%name)) < 0) cycle
             call check_one(trim(fields(k)%name), merge(0, fields(k)%width, &
                 fields(k)%width == 1))
             if (stat /= 0) return
@@ -437,12 +441,25 @@ contains
         call particles_visit(p, op)
     end subroutine read_particle_fields
 
+    !> Reading an optional field the file lacks: the particles read get its default, zero.
+    logical function missing_optional(op, info)
+        type(field_io_t), intent(in) :: op
+        type(field_info_t), intent(in) :: info
+        missing_optional = .false.
+        if (.not. op%reading .or. iand(info%flags, FIELD_OPTIONAL) == 0) return
+        missing_optional = h5_dataset_rows(op%file, 'particles/' // trim(info%name)) < 0
+    end function missing_optional
+
     subroutine io_real1(op, a, info)
         class(field_io_t), intent(inout) :: op
         real(wp), allocatable, intent(inout) :: a(:)
         type(field_info_t), intent(in) :: info
         real(wp), allocatable :: buffer(:)
         if (iand(info%flags, op%mask) == 0) return
+        if (missing_optional(op, info)) then
+            a(1:op%n) = 0.0_wp
+            return
+        end if
         allocate(buffer(max(op%n, 1)))
         if (op%reading) then
             call h5_read_rows(op%file, 'particles/' // trim(info%name), buffer, op%n, op%offset)
@@ -460,6 +477,10 @@ contains
         type(field_info_t), intent(in) :: info
         real(wp), allocatable :: buffer(:, :), column(:)
         if (iand(info%flags, op%mask) == 0) return
+        if (missing_optional(op, info)) then
+            a(:, 1:op%n) = 0.0_wp
+            return
+        end if
         if (info%width == 1) then
             ! one value per particle: a one-dimensional dataset, like the rank-1 fields
             allocate(column(max(op%n, 1)))
@@ -491,6 +512,10 @@ contains
         type(field_info_t), intent(in) :: info
         integer(i8), allocatable :: buffer(:)
         if (iand(info%flags, op%mask) == 0) return
+        if (missing_optional(op, info)) then
+            a(1:op%n) = 0
+            return
+        end if
         allocate(buffer(max(op%n, 1)))
         if (op%reading) then
             call h5_read_rows(op%file, 'particles/' // trim(info%name), buffer, op%n, op%offset)
@@ -508,6 +533,10 @@ contains
         type(field_info_t), intent(in) :: info
         integer(i4), allocatable :: buffer(:)
         if (iand(info%flags, op%mask) == 0) return
+        if (missing_optional(op, info)) then
+            a(1:op%n) = 0
+            return
+        end if
         allocate(buffer(max(op%n, 1)))
         if (op%reading) then
             call h5_read_rows(op%file, 'particles/' // trim(info%name), buffer, op%n, op%offset)

@@ -21,7 +21,7 @@ module sph_particles
     public :: field_info_t, field_op_t
     public :: KIND_FLUID, KIND_WALL, KIND_VIRTUAL, KIND_MIRROR
     public :: FIELD_REAL, FIELD_INT8, FIELD_INT
-    public :: FIELD_SNAPSHOT, FIELD_CHECKPOINT, FIELD_SHIFTED
+    public :: FIELD_SNAPSHOT, FIELD_CHECKPOINT, FIELD_SHIFTED, FIELD_OPTIONAL
     public :: HALO_GHOST, HALO_MOVE, HALO_DENSITY, HALO_STRAIN, ALL_FIELDS
 
     integer, parameter :: KIND_FLUID = 0    !< moves with the flow
@@ -42,6 +42,7 @@ module sph_particles
     integer, parameter :: HALO_MOVE = 16         !< refreshed after particles moved within a step
     integer, parameter :: HALO_DENSITY = 32      !< refreshed after a summation density
     integer, parameter :: HALO_STRAIN = 64       !< refreshed after the strain rate
+    integer, parameter :: FIELD_OPTIONAL = 128   !< a file may lack it: readers keep the default
     integer, parameter :: ALL_FIELDS = -1        !< every field (migration, permutation)
 
     !> One field as the table describes it.
@@ -90,6 +91,7 @@ module sph_particles
         integer(i8), allocatable :: id(:)       !< global id, survives migration and remeshing
         integer, allocatable :: kind(:)         !< KIND_*
         integer, allocatable :: level(:)        !< resolution level, 0 = coarsest
+        integer, allocatable :: solid(:)        !< the solid a wall particle belongs to, 0: none
         ! real fields added at run time (particles_add_field): extra(k)%a(width, capacity)
         type(extra_field_t), allocatable :: extra(:)
     end type particles_t
@@ -202,6 +204,7 @@ contains
         call op%int8(p%id, field_info_t('id', 1, snap + ghost, FIELD_INT8))
         call op%int4(p%kind, field_info_t('kind', 1, snap + ghost, FIELD_INT))
         call op%int4(p%level, field_info_t('level', 1, snap + ghost, FIELD_INT))
+        call op%int4(p%solid, field_info_t('solid', 1, snap + FIELD_OPTIONAL + ghost, FIELD_INT))
         if (.not. allocated(p%extra)) return
         do k = 1, size(p%extra)
             call op%real2(p%extra(k)%a, p%extra(k)%info)
