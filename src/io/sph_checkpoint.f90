@@ -165,11 +165,6 @@ contains
         end if
         call read_particle_fields(env, file, p, FIELD_CHECKPOINT, n, offset)
         call h5_close(file)
-        ! the start-of-step copies are rebuilt by the next step; keep them defined
-        p%x_old(:, 1:n) = p%x(:, 1:n)
-        p%v_old(:, 1:n) = p%v(:, 1:n)
-        p%rho_old(1:n) = p%rho(1:n)
-        p%e_old(1:n) = p%e(1:n)
     end subroutine read_checkpoint
 
     !> The newest complete checkpoint of `case_name` in `directory` (collective). Incomplete

@@ -14,7 +14,8 @@ module sph_snapshot
     use sph_kinds, only: wp, i4, i8
     use sph_mpi_env, only: mpi_env_t, global_max, broadcast_text
     use sph_errors, only: fatal_collective, fatal_abort
-    use sph_particles, only: particles_t, particles_reserve, particles_visit, field_list, &
+    use sph_particles, only: particles_t, particles_reserve, particles_clear, particles_visit, &
+        field_list, &
         field_info_t, field_op_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL, FIELD_SNAPSHOT, &
         FIELD_OPTIONAL
     use sph_hdf5, only: h5_file_t, h5_create, h5_open_read, h5_close, h5_group_create, &
@@ -255,7 +256,7 @@ contains
     !> Rows first_row .. first_row + n_rows - 1 (0-based; each rank its own range, possibly
     !> empty) become this rank's owned particles; ghosts are dropped, p%dim is set from the
     !> file, and the fields a snapshot does not hold (start-of-step copies, rates, strain,
-    !> wall geometry) are set to defined values. Refuses a file as read_snapshot_header does,
+    !> wall geometry) are zero. Refuses a file as read_snapshot_header does,
     !> and a range outside the file.
     subroutine read_particles_rows(env, path, p, first_row, n_rows, stat, errmsg)
         type(mpi_env_t), intent(in) :: env
@@ -299,19 +300,11 @@ contains
         n = n_rows
         p%dim = dim4
         call particles_reserve(p, n)
+        ! what a snapshot does not hold (start-of-step copies, rates, strain, wall geometry)
+        ! is zero: the next step rebuilds it
+        call particles_clear(p, 1, n)
         call read_particle_fields(env, file, p, FIELD_SNAPSHOT, n, first_row)
         call h5_close(file, my_stat)
-        ! what a snapshot does not hold: defined values (the next step rebuilds them)
-        p%x_old(:, 1:n) = p%x(:, 1:n)
-        p%v_old(:, 1:n) = p%v(:, 1:n)
-        p%rho_old(1:n) = p%rho(1:n)
-        p%e_old(1:n) = p%e(1:n)
-        p%dvdt(:, 1:n) = 0.0_wp
-        p%drhodt(1:n) = 0.0_wp
-        p%dedt(1:n) = 0.0_wp
-        p%strain(:, 1:n) = 0.0_wp
-        p%wall_normal(:, 1:n) = 0.0_wp
-        p%wall_distance(1:n) = 0.0_wp
         p%n_owned = n
         p%n_ghost = 0
         p%n_total = n

@@ -16,7 +16,8 @@ module sph_particles
     implicit none
     private
     public :: particles_t, particles_init, particles_free, particles_reserve
-    public :: particles_copy, particles_gather, particles_visit, particles_add_field
+    public :: particles_copy, particles_gather, particles_clear, particles_visit
+    public :: particles_add_field
     public :: particles_pack, particles_unpack, pack_widths, field_list
     public :: field_info_t, field_op_t
     public :: KIND_FLUID, KIND_WALL, KIND_VIRTUAL, KIND_MIRROR
@@ -150,6 +151,14 @@ module sph_particles
         procedure :: real1 => copy_real1, real2 => copy_real2
         procedure :: int8 => copy_int8, int4 => copy_int4
     end type copy_op_t
+
+    !> Every field of slots first..last set to zero (a defined state before reading).
+    type, extends(field_op_t) :: clear_op_t
+        integer :: first = 1, last = 0
+    contains
+        procedure :: real1 => clear_real1, real2 => clear_real2
+        procedure :: int8 => clear_int8, int4 => clear_int4
+    end type clear_op_t
 
     !> Pack (or unpack) the selected fields of particles index(1:n) into columns of rbuf
     !> (reals) and ibuf (integers as int64); `row_r`/`row_i` advance through the fields.
@@ -340,6 +349,16 @@ contains
         call particles_visit(p, op)
     end subroutine particles_gather
 
+    !> Set every field of slots first..last to zero.
+    subroutine particles_clear(p, first, last)
+        type(particles_t), intent(inout) :: p
+        integer, intent(in) :: first, last
+        type(clear_op_t) :: op
+        op%first = first
+        op%last = last
+        call particles_visit(p, op)
+    end subroutine particles_clear
+
     !> Pack the fields selected by mask of particles index(1:n) into rbuf(:, 1:n) (reals) and
     !> ibuf(:, 1:n) (integers). shift(:, k), when given, is added to the positions.
     subroutine particles_pack(p, mask, index, n, rbuf, ibuf, shift)
@@ -450,6 +469,36 @@ contains
         type(field_info_t), intent(in) :: info
         a(op%dst) = a(op%src)
     end subroutine copy_int4
+
+    ! ---- clear ----
+
+    subroutine clear_real1(op, a, info)
+        class(clear_op_t), intent(inout) :: op
+        real(wp), allocatable, intent(inout) :: a(:)
+        type(field_info_t), intent(in) :: info
+        a(op%first:op%last) = 0.0_wp
+    end subroutine clear_real1
+
+    subroutine clear_real2(op, a, info)
+        class(clear_op_t), intent(inout) :: op
+        real(wp), allocatable, intent(inout) :: a(:, :)
+        type(field_info_t), intent(in) :: info
+        a(:, op%first:op%last) = 0.0_wp
+    end subroutine clear_real2
+
+    subroutine clear_int8(op, a, info)
+        class(clear_op_t), intent(inout) :: op
+        integer(i8), allocatable, intent(inout) :: a(:)
+        type(field_info_t), intent(in) :: info
+        a(op%first:op%last) = 0
+    end subroutine clear_int8
+
+    subroutine clear_int4(op, a, info)
+        class(clear_op_t), intent(inout) :: op
+        integer, allocatable, intent(inout) :: a(:)
+        type(field_info_t), intent(in) :: info
+        a(op%first:op%last) = 0
+    end subroutine clear_int4
 
     ! ---- pack / unpack ----
 
