@@ -5,7 +5,7 @@ program bench_sph_step
     use sph_kinds, only: wp, i8
     use sph_mpi_env, only: mpi_env_t, mpi_env_init_world, mpi_env_free, global_sum, global_max
     use sph_config, only: config_t, config_parse
-    use sph_simulation, only: simulation_t, simulation_setup, simulation_step
+    use sph_stepper, only: simulation_t, simulation_setup, simulation_step
     use sph_cell_list, only: neighbour_list_t, build_neighbour_list
     use sph_logger, only: logger_init, VERBOSITY_QUIET
     use mpi_f08, only: MPI_Finalize, MPI_Barrier, MPI_Wtime

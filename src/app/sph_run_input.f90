@@ -1,6 +1,6 @@
 !> The run's schedule as read from input: &run (end time, step limit, log cadence, analytic
 !> reference) and &output (where and when snapshots are written). Read by sph_config; used by
-!> the driver (sph_simulation).
+!> the driver (sph_schedule, sph_stepper).
 module sph_run_input
     use sph_kinds, only: wp
     use sph_namelist, only: nml_group_t

@@ -1,13 +1,14 @@
 !> The simulated box as read from input (&domain): dimension, extent, the boundary of each
 !> face, wall velocities and the lattice spacing; and the checks that tie the case together
 !> (the lattice fills the box; an analytic reference needs its channel). Read by sph_config;
-!> used by the set-up (sph_initial, sph_walls, sph_physics, sph_simulation).
+!> used by the set-up (sph_initial, sph_walls, sph_physics, sph_reference, sph_stepper).
 module sph_domain_input
     use sph_kinds, only: wp
     use sph_namelist, only: nml_group_t
     implicit none
     private
     public :: domain_input_t, read_domain_input, check_analytic_channel
+    public :: channel_t, find_analytic_channel
     public :: n_faces, face_names
 
     integer, parameter :: n_faces = 6, name_len = 32
@@ -24,6 +25,13 @@ module sph_domain_input
     contains
         procedure :: is_wall, is_periodic
     end type domain_input_t
+
+    !> The channel an analytic reference describes (find_analytic_channel).
+    type :: channel_t
+        integer :: normal_axis = 0   !< the axis whose two faces are walls
+        integer :: flow_axis = 0     !< the axis the flow runs along
+        integer :: moving_face = 0   !< the moving wall's face; 0 when both rest
+    end type channel_t
 
 contains
 
@@ -82,27 +90,102 @@ contains
         end do
     end subroutine read_domain_input
 
-    !> The analytic reference (&run analytic) only makes sense for the channel it describes;
-    !> errors are reported against &run analytic in run_grp.
+    !> The analytic reference (&run analytic) only makes sense for the channel it describes
+    !> (find_analytic_channel); errors are reported against &run analytic in run_grp.
     subroutine check_analytic_channel(run_grp, analytic, dom, body_force)
         type(nml_group_t), intent(inout) :: run_grp
         character(len=*), intent(in) :: analytic
         type(domain_input_t), intent(in) :: dom
         real(wp), intent(in) :: body_force(3)
+        type(channel_t) :: channel
+        character(len=:), allocatable :: errmsg
         if (analytic == 'none') return
-        if (dom%boundary(1) /= 'periodic' .or. dom%boundary(3) /= 'wall' .or. &
-            dom%boundary(4) /= 'wall') &
-            call run_grp%error('analytic', "'" // trim(analytic) // &
-                "' needs periodic x faces and walls at ylo and yhi")
-        if (dom%dimension == 3 .and. dom%boundary(5) /= 'periodic') &
-            call run_grp%error('analytic', 'in 3D the z faces must be periodic')
-        if (any(dom%wall_velocity(:, 3) /= 0.0_wp)) &
-            call run_grp%error('analytic', 'the analytic channel has a resting lower wall')
-        if (analytic == 'poiseuille' .and. any(dom%wall_velocity(:, 4) /= 0.0_wp)) &
-            call run_grp%error('analytic', "'poiseuille' needs a resting upper wall")
-        if (analytic == 'couette' .and. any(dom%wall_velocity(2:3, 4) /= 0.0_wp)) &
-            call run_grp%error('analytic', "'couette' needs the upper wall to move along x only")
-        if (any(body_force(2:3) /= 0.0_wp)) &
-            call run_grp%error('analytic', 'the analytic channel has a body force along x only')
+        call find_analytic_channel(analytic, dom, body_force, channel, errmsg)
+        if (len(errmsg) > 0) call run_grp%error('analytic', errmsg)
     end subroutine check_analytic_channel
+
+    !> The channel of an analytic reference: walls on both faces of one axis (the wall
+    !> normal), every other axis in use periodic, one resting wall, and the flow along one
+    !> other axis: the body force's ('poiseuille', both walls resting) or the moving wall's
+    !> ('couette'). errmsg is empty when the case is such a channel. The input check
+    !> (check_analytic_channel) and the reference (sph_reference) both use this one rule.
+    subroutine find_analytic_channel(analytic, dom, body_force, channel, errmsg)
+        character(len=*), intent(in) :: analytic
+        type(domain_input_t), intent(in) :: dom
+        real(wp), intent(in) :: body_force(3)
+        type(channel_t), intent(out) :: channel
+        character(len=:), allocatable, intent(out) :: errmsg
+        integer :: axis, n_walled, dim, side, face
+        real(wp) :: drive(3)
+        character(len=:), allocatable :: name
+
+        errmsg = ''
+        name = "'" // trim(analytic) // "'"
+        dim = min(max(dom%dimension, 2), 3)
+        n_walled = 0
+        do axis = 1, dim
+            if (dom%is_wall(2*axis - 1) .and. dom%is_wall(2*axis)) then
+                n_walled = n_walled + 1
+                channel%normal_axis = axis
+            else if (.not. dom%is_periodic(axis)) then
+                n_walled = n_walled + 2   ! a single wall face: not a channel
+            end if
+        end do
+        if (n_walled /= 1) then
+            errmsg = name // ' needs walls on both faces of one axis and periodic faces ' // &
+                'on the others'
+            return
+        end if
+        ! the moving wall, if any: at most one of the two
+        channel%moving_face = 0
+        do side = 1, 2
+            face = 2*channel%normal_axis - 2 + side
+            if (any(dom%wall_velocity(:, face) /= 0.0_wp)) then
+                if (channel%moving_face /= 0) then
+                    errmsg = name // ' needs one resting wall'
+                    return
+                end if
+                channel%moving_face = face
+            end if
+        end do
+        drive = body_force
+        if (trim(analytic) == 'couette') then
+            if (channel%moving_face /= 0) drive = dom%wall_velocity(:, channel%moving_face)
+        else if (channel%moving_face /= 0) then
+            errmsg = name // ' needs both walls at rest'
+            return
+        end if
+        ! the flow axis: the one axis the drive points along, or the first other axis
+        channel%flow_axis = 0
+        do axis = 1, 3
+            if (drive(axis) /= 0.0_wp) then
+                if (channel%flow_axis /= 0) then
+                    errmsg = name // ' needs the ' // trim(driver_name(analytic)) // &
+                        ' along one axis'
+                    return
+                end if
+                channel%flow_axis = axis
+            end if
+        end do
+        if (channel%flow_axis == 0) channel%flow_axis = merge(2, 1, channel%normal_axis == 1)
+        if (channel%flow_axis == channel%normal_axis .or. channel%flow_axis > dim) then
+            errmsg = name // ' needs the ' // trim(driver_name(analytic)) // &
+                ' along a periodic axis'
+            return
+        end if
+        ! any body force must push along the flow (it drives the Poiseuille profile)
+        do axis = 1, 3
+            if (axis /= channel%flow_axis .and. body_force(axis) /= 0.0_wp) then
+                errmsg = name // ' needs the body force along the flow only'
+                return
+            end if
+        end do
+    end subroutine find_analytic_channel
+
+    pure function driver_name(analytic) result(name)
+        character(len=*), intent(in) :: analytic
+        character(len=:), allocatable :: name
+        name = merge('moving wall''s velocity', 'body force            ', &
+            trim(analytic) == 'couette')
+    end function driver_name
 end module sph_domain_input

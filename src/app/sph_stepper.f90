@@ -1,0 +1,464 @@
+!> The simulation state and how it advances: set-up, restart, one time step as a sequence of
+!> named stages, rebalancing, snapshots and checkpoints of the state, and the error against
+!> the analytic reference. This is where communication is orchestrated (migration, halo
+!> build and refresh between the stages of a step); the physics modules it calls make no MPI
+!> calls. When to write, log and stop is decided by sph_schedule; the loop is sph_simulation.
+module sph_stepper
+    use sph_kinds, only: wp, i8
+    use sph_config, only: config_t, config_to_text
+    use sph_mpi_env, only: mpi_env_t, global_sum, global_max, global_min
+    use sph_errors, only: fatal_collective
+    use sph_logger, only: log_info
+    use sph_particles, only: particles_t, particles_init, particles_gather, KIND_FLUID, &
+        HALO_MOVE, HALO_DENSITY, HALO_STRAIN
+    use sph_physics, only: physics_t, physics_from_config, DENSITY_SUMMATION, &
+        VISCOSITY_STRAIN_RATE, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR
+    use sph_kernel, only: kernel_name
+    use sph_walls, only: solids_from_config, build_mirrors, wall_layers
+    use sph_solids, only: solids_t
+    use sph_domain, only: domain_t, domain_create, domain_partition, migrate_particles, &
+        domain_imbalance
+    use sph_halo, only: halo_t, halo_setup, halo_build, halo_refresh
+    use sph_cell_list, only: neighbour_list_t, build_neighbour_list, cell_sort_order
+    use sph_rates, only: update_pressure, compute_summation_density, compute_strain_rate, &
+        compute_rates, local_max_speed, local_max_acceleration
+    use sph_timestep, only: timestep_limits_t, timestep_limits
+    use sph_integrator, only: save_step_start, advance
+    use sph_initial, only: create_lattice_particles
+    use sph_reference, only: reference_t, reference_from_config, relative_l2_error, &
+        relative_l2_from_sums
+    use sph_snapshot, only: write_snapshot, snapshot_filename
+    use sph_checkpoint, only: write_checkpoint, read_checkpoint, checkpoint_filename, &
+        find_latest_checkpoint
+    use sph_xdmf, only: xdmf_index_entry, write_xdmf
+    use sph_filesystem, only: delete_file
+    use sph_version, only: code_version
+    implicit none
+    private
+    public :: simulation_t, simulation_setup, simulation_step, simulation_rebalance
+    public :: simulation_analytic_error, simulation_prepare_neighbours, simulation_free
+    public :: simulation_restart, simulation_write_checkpoint, simulation_write_snapshot
+    public :: fluid_density_range
+
+    type :: simulation_t
+        type(config_t) :: cfg
+        type(physics_t) :: phys
+        type(solids_t) :: solids   !< walls and bodies
+        type(reference_t) :: ref           !< the analytic reference (&run analytic)
+        type(domain_t) :: domain
+        type(halo_t) :: halo
+        type(particles_t) :: p
+        type(neighbour_list_t) :: nl
+        real(wp) :: time = 0.0_wp
+        integer(i8) :: step = 0
+        real(wp) :: skin = 0.0_wp          !< ghost skin: covers any motion within one step
+        real(wp) :: list_skin = 0.0_wp     !< neighbour-list skin: lets a list serve both stages
+        type(timestep_limits_t) :: last_limits
+        character(len=:), allocatable :: input_text
+        character(len=:), allocatable :: snapshot_index   !< one line per snapshot, for XDMF
+        character(len=512), allocatable :: checkpoints(:) !< written by this run, oldest first
+    end type simulation_t
+
+contains
+
+    !> What a fresh start and a restart share: parameters, walls, the domain, empty particles.
+    subroutine setup_common(sim, env, cfg)
+        type(simulation_t), intent(out) :: sim
+        type(mpi_env_t), intent(in) :: env
+        type(config_t), intent(in) :: cfg
+        integer :: stat, axis
+        character(len=:), allocatable :: errmsg
+        logical :: periodic(3)
+
+        sim%cfg = cfg
+        sim%input_text = config_to_text(cfg)
+        sim%snapshot_index = ''
+        allocate(sim%checkpoints(0))
+        call physics_from_config(cfg, sim%phys, stat, errmsg)
+        if (stat /= 0) call fatal_collective('set-up', errmsg)
+        do axis = 1, cfg%domain%dimension
+            if (cfg%domain%is_periodic(axis) .and. &
+                cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis) < &
+                2.0_wp * sim%phys%kernel%support) then
+                call fatal_collective('set-up', &
+                    'a periodic box side must be at least twice the ' // &
+                    'kernel support radius (&domain box_lo/box_hi, &domain dx, &numerics h_factor)')
+            end if
+        end do
+        sim%solids = solids_from_config(cfg)
+        call reference_from_config(cfg, sim%ref, stat, errmsg)
+        if (stat /= 0) call fatal_collective('set-up', errmsg)
+        periodic = .false.
+        do axis = 1, cfg%domain%dimension
+            periodic(axis) = cfg%domain%is_periodic(axis)
+        end do
+        call domain_create(sim%domain, env, cfg%domain%dimension, cfg%domain%box_lo, &
+            cfg%domain%box_hi, periodic)
+        call particles_init(sim%p, 1024, cfg%domain%dimension)
+        ! ghosts reach the support plus a skin that covers any motion within one step
+        sim%skin = 2.0_wp * cfg%numerics%cfl * sim%phys%kernel%h
+        sim%list_skin = 0.1_wp * sim%phys%kernel%h
+        sim%time = 0.0_wp
+        sim%step = 0
+    end subroutine setup_common
+
+    !> Build everything from a validated configuration (collective).
+    subroutine simulation_setup(sim, env, cfg)
+        type(simulation_t), intent(out) :: sim
+        type(mpi_env_t), intent(in) :: env
+        type(config_t), intent(in) :: cfg
+        call setup_common(sim, env, cfg)
+        call create_lattice_particles(cfg, sim%phys, sim%solids, sim%domain, sim%p)
+        ! balance by particle count (walls included: they cost work too)
+        call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
+        call migrate_particles(sim%domain, env, sim%p)
+        call halo_setup(sim%halo, sim%domain, sim%phys%kernel%support + sim%skin)
+        call simulation_prepare_neighbours(sim, env)
+        call log_setup(sim, env)
+    end subroutine simulation_setup
+
+    !> Continue from a checkpoint file, or from the newest complete one in a directory.
+    !> On the rank count that wrote it the run continues bit for bit.
+    subroutine simulation_restart(sim, env, cfg, from)
+        type(simulation_t), intent(out) :: sim
+        type(mpi_env_t), intent(in) :: env
+        type(config_t), intent(in) :: cfg
+        character(len=*), intent(in) :: from
+        character(len=:), allocatable :: path, skipped, errmsg, stored_input, index_text
+        integer :: stat
+        logical :: same_layout, is_directory
+        character(len=256) :: line
+
+        call setup_common(sim, env, cfg)
+        inquire(file=trim(from) // '/.', exist=is_directory)
+        if (is_directory) then
+            call find_latest_checkpoint(env, from, trim(cfg%run%case_name), path, skipped, stat, &
+                errmsg)
+            if (stat /= 0) call fatal_collective('restart', errmsg)
+            if (len(skipped) > 0) call log_info('restart: skipped' // skipped)
+        else
+            path = from
+        end if
+        call read_checkpoint(env, path, sim%p, sim%domain, sim%time, sim%step, stored_input, &
+            index_text, same_layout, stat, errmsg)
+        if (stat /= 0) call fatal_collective('restart', errmsg)
+        sim%snapshot_index = index_text
+        if (.not. same_layout) then
+            call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
+            call migrate_particles(sim%domain, env, sim%p)
+        end if
+        call halo_setup(sim%halo, sim%domain, sim%phys%kernel%support + sim%skin)
+        call simulation_prepare_neighbours(sim, env)
+        call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+        write(line, '(a,es12.5,a,i0,a)') 'continuing from ' // path // ' at t = ', sim%time, &
+            ' s, step ', sim%step, merge(' (same decomposition)      ', &
+                                         ' (decomposition rebuilt)   ', same_layout)
+        call log_info(trim(line))
+        if (stored_input /= sim%input_text) call log_info('restart: the input differs from ' // &
+            'the one stored in the checkpoint; the new input is used')
+        call log_setup(sim, env)
+    end subroutine simulation_restart
+
+    subroutine log_setup(sim, env)
+        type(simulation_t), intent(in) :: sim
+        type(mpi_env_t), intent(in) :: env
+        character(len=256) :: line
+        write(line, '(a,es12.5,a,es12.5,a,es12.5,a)') 'physics: h = ', sim%phys%kernel%h, &
+            ' m (kernel ' // kernel_name(sim%phys%kernel%id) // ', support ', &
+            sim%phys%kernel%support, ' m), c = ', sim%phys%c, ' m/s'
+        call log_info(trim(line))
+        write(line, '(a,es12.5,a,es12.5,a,i0)') '         velocity scale ', &
+            sim%phys%velocity_scale, ' m/s, length scale ', sim%phys%length_scale, &
+            ' m, wall layers ', wall_layers(sim%phys)
+        call log_info(trim(line))
+        write(line, '(a,i0,a,i0,a,f6.3)') 'particles: ', global_sum(env, int(sim%p%n_owned, i8)), &
+            ' real (fluid ', global_sum(env, int(count(sim%p%kind(1:sim%p%n_owned) == KIND_FLUID), &
+                i8)), &
+            '), load imbalance ', domain_imbalance(env, sim%p%n_owned)
+        call log_info(trim(line))
+    end subroutine log_setup
+
+    !> Write a checkpoint of the current state and keep only the newest checkpoints_kept of
+    !> those this run wrote (collective).
+    subroutine simulation_write_checkpoint(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        character(len=:), allocatable :: path, errmsg
+        integer :: stat
+        path = checkpoint_filename(trim(sim%cfg%output%output_dir), trim(sim%cfg%run%case_name), &
+            sim%step)
+        call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, &
+            sim%cfg%domain%dimension, &
+            code_version, sim%input_text, sim%snapshot_index, stat, errmsg)
+        if (stat /= 0) call fatal_collective('checkpoint', errmsg)
+        if (all(sim%checkpoints /= path)) &
+            sim%checkpoints = [character(len=512) :: sim%checkpoints, path]
+        do while (size(sim%checkpoints) > sim%cfg%restart%checkpoints_kept)
+            if (env%rank == 0) call delete_file(trim(sim%checkpoints(1)))
+            sim%checkpoints = sim%checkpoints(2:)
+        end do
+        call log_info('checkpoint: ' // path)
+    end subroutine simulation_write_checkpoint
+
+    subroutine simulation_free(sim)
+        type(simulation_t), intent(inout) :: sim
+        sim%p%n_owned = 0
+    end subroutine simulation_free
+
+    !> After particles moved between ranks: order owned particles by cell (memory locality),
+    !> rebuild ghosts and mirrors and the neighbour list.
+    subroutine simulation_prepare_neighbours(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        integer, allocatable :: order(:)
+        allocate(order(sim%p%n_owned))
+        call cell_sort_order(sim%p%x, sim%p%n_owned, sim%p%dim, sim%phys%kernel%support, order)
+        call particles_gather(sim%p, order)
+        sim%p%n_ghost = 0
+        sim%p%n_total = sim%p%n_owned
+        call halo_build(sim%halo, sim%domain, env, sim%p)
+        call refresh_neighbours(sim)
+    end subroutine simulation_prepare_neighbours
+
+    !> Mirrors and the neighbour list for the current positions. The list holds pairs within
+    !> support + list_skin, so it stays complete while no pair closes in by more than the skin.
+    subroutine refresh_neighbours(sim)
+        type(simulation_t), intent(inout) :: sim
+        call build_mirrors(sim%phys, sim%solids, sim%p)
+        call build_neighbour_list(sim%p%x, sim%p%n_total, sim%p%n_owned, sim%p%dim, &
+            sim%phys%kernel%support + sim%list_skin, sim%nl)
+    end subroutine refresh_neighbours
+
+    !> Rates at the current state. Ghost fields are current on entry; stages that produce a
+    !> field the neighbours need (summation density, strain rate) refresh the ghosts.
+    subroutine evaluate_rates(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        if (sim%phys%density_method == DENSITY_SUMMATION) then
+            call compute_summation_density(sim%phys, sim%p, sim%nl)
+            call halo_refresh(sim%halo, env, sim%p, HALO_DENSITY)
+            call build_mirrors(sim%phys, sim%solids, sim%p)
+        end if
+        call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+        if (sim%phys%viscosity == VISCOSITY_STRAIN_RATE) then
+            call compute_strain_rate(sim%phys, sim%p, sim%nl)
+            call halo_refresh(sim%halo, env, sim%p, HALO_STRAIN)
+            call build_mirrors(sim%phys, sim%solids, sim%p)
+        end if
+        call compute_rates(sim%phys, sim%p, sim%nl)
+    end subroutine evaluate_rates
+
+    !> Time-step limit for the current rates (collective).
+    function stable_timestep(sim, env) result(lim)
+        type(simulation_t), intent(in) :: sim
+        type(mpi_env_t), intent(in) :: env
+        type(timestep_limits_t) :: lim
+        real(wp) :: vmax, amax
+        vmax = global_max(env, local_max_speed(sim%p))
+        amax = global_max(env, local_max_acceleration(sim%p))
+        lim = timestep_limits(sim%phys%kernel%h, sim%phys%c, vmax, sim%phys%nu, amax, &
+            sim%cfg%numerics%cfl, sim%cfg%numerics%viscous_safety, sim%cfg%numerics%force_safety)
+    end function stable_timestep
+
+    logical function uses_mirrors(sim)
+        type(simulation_t), intent(in) :: sim
+        uses_mirrors = sim%phys%walls == WALLS_MIRROR .or. sim%phys%walls == WALLS_REPULSIVE_MIRROR
+    end function uses_mirrors
+
+    !> One predictor-corrector step, at most dt_cap long (to land on output times). Ghosts,
+    !> mirrors and the neighbour list are current on entry and on exit.
+    subroutine simulation_step(sim, env, dt_cap)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        real(wp), intent(in), optional :: dt_cap
+        real(wp) :: dt
+
+        call evaluate_rates(sim, env)
+        sim%last_limits = stable_timestep(sim, env)
+        dt = sim%last_limits%dt
+        if (present(dt_cap)) dt = min(dt, dt_cap)
+        call predictor(sim, dt)
+        call refresh_halo(sim, env)
+        call prepare_boundaries(sim, dt)
+        call evaluate_rates(sim, env)
+        call corrector(sim, dt)
+        call migrate_and_rebuild(sim, env)
+        call remesh_if_due(sim, env)
+        call update_transition_zones(sim, env)
+        call check_health(sim, env)
+    end subroutine simulation_step
+
+    !> Half a step from the saved step-start state with the step-start rates.
+    subroutine predictor(sim, dt)
+        type(simulation_t), intent(inout) :: sim
+        real(wp), intent(in) :: dt
+        call save_step_start(sim%p)
+        call advance(sim%p, 0.5_wp * dt, integrated_density(sim))
+    end subroutine predictor
+
+    !> Ghosts take their owners' predicted positions and velocities.
+    subroutine refresh_halo(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        call halo_refresh(sim%halo, env, sim%p, HALO_MOVE)
+    end subroutine refresh_halo
+
+    !> Mirrors and the neighbour list for the predicted positions. A particle moves at most
+    !> (vmax + amax dt/2) dt/2 in the half step; the list stays valid while two particles
+    !> cannot close in by more than the skin. Mirrors change with the ghosts, so mirror walls
+    !> always rebuild.
+    subroutine prepare_boundaries(sim, dt)
+        type(simulation_t), intent(inout) :: sim
+        real(wp), intent(in) :: dt
+        real(wp) :: max_shift
+        max_shift = (sim%last_limits%max_speed + 0.5_wp * dt * sim%last_limits%max_accel) &
+            * 0.5_wp * dt
+        if (2.0_wp * max_shift >= sim%list_skin .or. uses_mirrors(sim) .or. &
+            sim%p%n_total /= sim%p%n_owned + sim%p%n_ghost) then
+            call refresh_neighbours(sim)
+        end if
+    end subroutine prepare_boundaries
+
+    !> The full step from the step-start state with the mid-step rates; time advances.
+    subroutine corrector(sim, dt)
+        type(simulation_t), intent(inout) :: sim
+        real(wp), intent(in) :: dt
+        call advance(sim%p, dt, integrated_density(sim))
+        sim%time = sim%time + dt
+        sim%step = sim%step + 1
+        sim%last_limits%dt = dt
+    end subroutine corrector
+
+    !> Particles that left go to their new owner; ghosts, mirrors, the neighbour list and
+    !> the pressure are rebuilt for the new positions.
+    subroutine migrate_and_rebuild(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        call migrate_particles(sim%domain, env, sim%p)
+        call simulation_prepare_neighbours(sim, env)
+        call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+    end subroutine migrate_and_rebuild
+
+    !> Hook: refine and coarsen particles when a remeshing pass is due (no-op today).
+    subroutine remesh_if_due(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        associate(unused_sim => sim, unused_env => env)
+        end associate
+    end subroutine remesh_if_due
+
+    !> Hook: move the transition zones between resolution levels with the flow (no-op today).
+    subroutine update_transition_zones(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        associate(unused_sim => sim, unused_env => env)
+        end associate
+    end subroutine update_transition_zones
+
+    !> Hook: stop collectively on non-finite or runaway fields (no-op today).
+    subroutine check_health(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        associate(unused_sim => sim, unused_env => env)
+        end associate
+    end subroutine check_health
+
+    !> Density is integrated (continuity) unless it is summed from the neighbours.
+    logical function integrated_density(sim)
+        type(simulation_t), intent(in) :: sim
+        integrated_density = sim%phys%density_method /= DENSITY_SUMMATION
+    end function integrated_density
+
+    !> Rebalance when the load imbalance passes the threshold from the input (collective).
+    subroutine simulation_rebalance(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        real(wp) :: before, after
+        character(len=128) :: line
+        if (env%nranks == 1) return
+        if (mod(sim%step, int(sim%cfg%parallel%rebalance_check_interval, i8)) /= 0) return
+        before = domain_imbalance(env, sim%p%n_owned)
+        if (before <= sim%cfg%parallel%rebalance_threshold) return
+        call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
+        call halo_setup(sim%halo, sim%domain, sim%halo%reach)
+        call migrate_particles(sim%domain, env, sim%p)
+        call simulation_prepare_neighbours(sim, env)
+        after = domain_imbalance(env, sim%p%n_owned)
+        write(line, '(a,i0,a,f6.3,a,f6.3)') 'step ', sim%step, ': rebalanced, imbalance ', &
+            before, ' -> ', after
+        call log_info(trim(line))
+    end subroutine simulation_rebalance
+
+    !> Relative L2 error of the velocity of all fluid particles against the analytic
+    !> reference named by &run analytic (sph_reference; collective). Negative when there is
+    !> none.
+    real(wp) function simulation_analytic_error(sim, env, steady) result(error)
+        type(simulation_t), intent(in) :: sim
+        type(mpi_env_t), intent(in) :: env
+        logical, intent(in), optional :: steady
+        logical :: against_steady
+        error = -1.0_wp
+        if (trim(sim%ref%name) == 'none') return
+        against_steady = .false.
+        if (present(steady)) against_steady = steady
+        error = relative_l2_from_sums(global_sum(env, &
+            relative_l2_error(sim%ref, sim%p, sim%time, against_steady)))
+    end function simulation_analytic_error
+
+    !> A snapshot, its line in the run's index and the XDMF series rewritten (rank 0).
+    subroutine simulation_write_snapshot(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        character(len=:), allocatable :: path, errmsg, xdmf_path
+        integer :: stat, k
+        integer(i8) :: rows
+        real(wp) :: error
+        character(len=160) :: line
+        path = snapshot_filename(trim(sim%cfg%output%output_dir), trim(sim%cfg%run%case_name), &
+            sim%step)
+        call write_snapshot(env, sim%p, path, sim%time, sim%step, sim%cfg%domain%dimension, &
+            code_version, sim%input_text, stat, errmsg)
+        if (stat /= 0) call fatal_collective('output', errmsg)
+        rows = global_sum(env, int(sim%p%n_owned, i8))
+        k = index(path, '/', back=.true.)
+        sim%snapshot_index = sim%snapshot_index // xdmf_index_entry(sim%time, sim%step, rows, &
+            path(k + 1:))
+        xdmf_path = trim(sim%cfg%output%output_dir) // '/' // trim(sim%cfg%run%case_name) // &
+            '.xdmf'
+        stat = 0
+        if (env%rank == 0) call write_xdmf(xdmf_path, sim%snapshot_index, stat)
+        if (global_max(env, int(stat, i8)) /= 0) &
+            call fatal_collective('output', "cannot write '" // xdmf_path // "'")
+        write(line, '(a,es12.5,a)') 'snapshot t = ', sim%time, ' s: ' // path
+        if (trim(sim%ref%name) /= 'none' .and. sim%time > 0.0_wp) then
+            error = simulation_analytic_error(sim, env)
+            write(line, '(a,a,f8.4,a)') trim(line), ' (L2 error vs analytic ', 100.0_wp * error, &
+                ' %)'
+        end if
+        call log_info(trim(line))
+    end subroutine simulation_write_snapshot
+
+    !> Smallest and largest fluid density over all ranks (collective).
+    function fluid_density_range(sim, env) result(range)
+        type(simulation_t), intent(in) :: sim
+        type(mpi_env_t), intent(in) :: env
+        real(wp) :: range(2)
+        range(1) = global_min(env, fluid_extreme(sim%p, .false.))
+        range(2) = global_max(env, fluid_extreme(sim%p, .true.))
+    end function fluid_density_range
+
+    pure real(wp) function fluid_extreme(p, want_max)
+        type(particles_t), intent(in) :: p
+        logical, intent(in) :: want_max
+        integer :: i
+        fluid_extreme = merge(-huge(1.0_wp), huge(1.0_wp), want_max)
+        do i = 1, p%n_owned
+            if (p%kind(i) /= KIND_FLUID) cycle
+            if (want_max) then
+                fluid_extreme = max(fluid_extreme, p%rho(i))
+            else
+                fluid_extreme = min(fluid_extreme, p%rho(i))
+            end if
+        end do
+    end function fluid_extreme
+end module sph_stepper

@@ -1,0 +1,129 @@
+!> Analytic reference solutions selected by &run analytic ('none', 'poiseuille', 'couette'),
+!> made once at set-up from the configuration. The channel is found from the boundaries
+!> (sph_domain_input find_analytic_channel, the same rule the input check applies): the wall
+!> normal is the axis whose two faces are walls, the flow runs along the body force or the
+!> moving wall's velocity. No MPI here: the driver sums the partial error sums over ranks.
+module sph_reference
+    use sph_kinds, only: wp
+    use sph_config, only: config_t
+    use sph_domain_input, only: channel_t, find_analytic_channel
+    use sph_particles, only: particles_t, KIND_FLUID
+    use sph_analytic, only: couette_velocity, poiseuille_velocity
+    implicit none
+    private
+    public :: reference_t, reference_from_config, velocity, relative_l2_error, steady_after
+    public :: relative_l2_from_sums
+
+    integer, parameter :: name_len = 32
+
+    type :: reference_t
+        character(len=name_len) :: name = 'none'
+        integer :: normal_axis = 2       !< wall-normal axis of the channel
+        integer :: flow_axis = 1         !< axis the flow runs along
+        real(wp) :: lo = 0.0_wp          !< the walls' positions on the normal axis
+        real(wp) :: hi = 0.0_wp
+        real(wp) :: width = 0.0_wp       !< hi - lo
+        logical :: lower_moves = .false. !< Couette: the wall at lo moves (distance from hi)
+        real(wp) :: wall_speed = 0.0_wp  !< Couette: moving wall's velocity along the flow
+        real(wp) :: force = 0.0_wp       !< Poiseuille: body force along the flow
+        real(wp) :: nu = 0.0_wp          !< kinematic viscosity
+    end type reference_t
+
+contains
+
+    !> The reference for a configuration; stat /= 0 (with errmsg) when &run analytic names a
+    !> solution the case is not the channel of (the input check refuses such input first).
+    subroutine reference_from_config(cfg, ref, stat, errmsg)
+        type(config_t), intent(in) :: cfg
+        type(reference_t), intent(out) :: ref
+        integer, intent(out) :: stat
+        character(len=:), allocatable, intent(out) :: errmsg
+        type(channel_t) :: channel
+        stat = 0
+        errmsg = ''
+        ref%name = cfg%run%analytic
+        if (trim(ref%name) == 'none') return
+        call find_analytic_channel(trim(ref%name), cfg%domain, cfg%fluid%body_force, channel, &
+            errmsg)
+        if (len(errmsg) > 0) then
+            stat = 1
+            errmsg = '&run analytic: ' // errmsg
+            ref%name = 'none'
+            return
+        end if
+        ref%normal_axis = channel%normal_axis
+        ref%flow_axis = channel%flow_axis
+        ref%lo = cfg%domain%box_lo(ref%normal_axis)
+        ref%hi = cfg%domain%box_hi(ref%normal_axis)
+        ref%width = cfg%domain%box_hi(ref%normal_axis) - cfg%domain%box_lo(ref%normal_axis)
+        ref%lower_moves = channel%moving_face == 2*ref%normal_axis - 1
+        if (channel%moving_face /= 0) &
+            ref%wall_speed = cfg%domain%wall_velocity(ref%flow_axis, channel%moving_face)
+        ref%force = cfg%fluid%body_force(ref%flow_axis)
+        ref%nu = cfg%fluid%nu
+    end subroutine reference_from_config
+
+    !> The exact velocity at point x and time t (t = huge(1.0_wp): the steady profile);
+    !> zero for 'none'.
+    pure function velocity(ref, x, t) result(exact)
+        type(reference_t), intent(in) :: ref
+        real(wp), intent(in) :: x(:), t
+        real(wp) :: exact(3)
+        real(wp) :: y
+        exact = 0.0_wp
+        select case (trim(ref%name))
+        case ('poiseuille')
+            y = x(ref%normal_axis) - ref%lo
+            exact(ref%flow_axis) = poiseuille_velocity(y, t, ref%force, ref%width, ref%nu)
+        case ('couette')
+            ! distance from the resting wall
+            if (ref%lower_moves) then
+                y = ref%hi - x(ref%normal_axis)
+            else
+                y = x(ref%normal_axis) - ref%lo
+            end if
+            exact(ref%flow_axis) = couette_velocity(y, t, ref%wall_speed, ref%width, ref%nu)
+        end select
+    end function velocity
+
+    !> This rank's partial sums of the relative L2 velocity error over its owned fluid
+    !> particles at time (steady: against the steady profile): [sum |v - exact|^2,
+    !> sum |exact|^2]. Sum them over ranks, then relative_l2_from_sums.
+    pure function relative_l2_error(ref, p, time, steady) result(sums)
+        type(reference_t), intent(in) :: ref
+        type(particles_t), intent(in) :: p
+        real(wp), intent(in) :: time
+        logical, intent(in) :: steady
+        real(wp) :: sums(2)
+        real(wp) :: exact(3), t
+        integer :: i
+        t = time
+        if (steady) t = huge(1.0_wp)
+        sums = 0.0_wp
+        do i = 1, p%n_owned
+            if (p%kind(i) /= KIND_FLUID) cycle
+            exact = velocity(ref, p%x(:, i), t)
+            sums(1) = sums(1) + sum((p%v(:, i) - exact)**2)
+            sums(2) = sums(2) + sum(exact**2)
+        end do
+    end function relative_l2_error
+
+    !> sqrt(sums(1) / sums(2)) for the global sums; the absolute norm when the exact field is 0.
+    pure real(wp) function relative_l2_from_sums(sums) result(error)
+        real(wp), intent(in) :: sums(2)
+        if (sums(2) > 0.0_wp) then
+            error = sqrt(sums(1) / sums(2))
+        else
+            error = sqrt(sums(1))
+        end if
+    end function relative_l2_from_sums
+
+    !> The time after which the steady profile is a meaningful reference: a few viscous
+    !> times, 5 L^2/(pi^2 nu). huge for 'none'.
+    pure real(wp) function steady_after(ref)
+        type(reference_t), intent(in) :: ref
+        steady_after = huge(1.0_wp)
+        if (trim(ref%name) == 'none') return
+        steady_after = 5.0_wp * ref%width**2 / (acos(-1.0_wp)**2 * ref%nu)
+    end function steady_after
+end module sph_reference
