@@ -1,7 +1,8 @@
 !> Initial particles: fluid at rest on a lattice of spacing dx filling the box minus the
 !> solids, and the wall particles of the chosen wall model (Morris: the lattice sites inside a
-!> solid to one kernel support of depth, behind the box faces and inside bodies alike). Each rank makes only the particles its subdomain owns;
-!> global ids come from lattice indices, so they do not depend on the rank count.
+!> solid to one kernel support of depth, behind the box faces and inside bodies alike). Each
+!> rank makes only the particles its subdomain owns; global ids come from lattice indices, so
+!> they do not depend on the rank count.
 module sph_initial
     use sph_kinds, only: wp, i8
     use sph_config, only: config_t

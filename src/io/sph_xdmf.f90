@@ -78,9 +78,12 @@ contains
                 if (fields(f)%width > 1) write(width_text, '(a,1x,i0)') trim(n_text), &
                     fields(f)%width
                 select case (fields(f)%storage)
-                case (FIELD_REAL); call data_item(trim(fields(f)%name), 'Float', 8, trim(width_text))
-                case (FIELD_INT8); call data_item(trim(fields(f)%name), 'Int', 8, trim(width_text))
-                case default; call data_item(trim(fields(f)%name), 'Int', 4, trim(width_text))
+                case (FIELD_REAL)
+                    call data_item(trim(fields(f)%name), 'Float', 8, trim(width_text))
+                case (FIELD_INT8)
+                    call data_item(trim(fields(f)%name), 'Int', 8, trim(width_text))
+                case default
+                    call data_item(trim(fields(f)%name), 'Int', 4, trim(width_text))
                 end select
                 write(unit, '(a)') '    </Attribute>'
             end do
