@@ -218,6 +218,9 @@ contains
             do kk = nl%start(iw), nl%start(iw + 1) - 1
                 jj = nl%index(kk)
                 if (repulsive_only(phys, p%kind(jj))) cycle
+                ! walls are rigid: a belt (lid) sliding past a resting wall does not compress
+                ! either of them, so only the fluid changes a wall particle's density
+                if (p%kind(jj) == KIND_WALL) cycle
                 dd = p%x(:, iw) - p%x(:, jj)
                 rr = norm2(dd)
                 if (rr <= 0.0_wp) cycle
