@@ -6,7 +6,7 @@
 module sph_stepper
     use sph_kinds, only: wp, i8
     use sph_config, only: config_t, config_to_text
-    use sph_mpi_env, only: mpi_env_t, global_sum, global_max, global_min
+    use sph_mpi_env, only: mpi_env_t, global_sum, global_max, global_min, broadcast_text
     use sph_errors, only: fatal_collective
     use sph_logger, only: log_info
     use sph_particles, only: particles_t, particles_init, particles_gather, KIND_FLUID, &
@@ -27,7 +27,9 @@ module sph_stepper
     use sph_initial, only: create_lattice_particles
     use sph_reference, only: reference_t, reference_from_config, relative_l2_error, &
         relative_l2_from_sums
-    use sph_snapshot, only: write_snapshot, snapshot_filename
+    use sph_snapshot, only: write_snapshot, snapshot_filename, snapshot_begin, snapshot_end
+    use sph_hdf5, only: h5_file_t, h5_write_attribute
+    use sph_health, only: health_problem_t, check_particles, check_timestep, HEALTH_OK
     use sph_checkpoint, only: write_checkpoint, read_checkpoint, checkpoint_filename, &
         find_latest_checkpoint
     use sph_xdmf, only: xdmf_index_entry, write_xdmf
@@ -54,6 +56,7 @@ module sph_stepper
         real(wp) :: skin = 0.0_wp          !< ghost skin: covers any motion within one step
         real(wp) :: list_skin = 0.0_wp     !< neighbour-list skin: lets a list serve both stages
         type(timestep_limits_t) :: last_limits
+        real(wp) :: first_dt = 0.0_wp      !< the run's first time step (health check)
         character(len=:), allocatable :: input_text
         character(len=:), allocatable :: snapshot_index   !< one line per snapshot, for XDMF
         character(len=512), allocatable :: checkpoints(:) !< written by this run, oldest first
@@ -355,13 +358,53 @@ contains
         end associate
     end subroutine update_transition_zones
 
-    !> Hook: stop collectively on non-finite or runaway fields (no-op today).
+    !> Stop collectively when the run has become unhealthy (sph_health): non-finite values, a
+    !> fluid particle inside a solid, a density outside the band, a collapsed time step. The
+    !> lowest rank with a problem names it; a failure snapshot is written; exit status 3.
     subroutine check_health(sim, env)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
-        associate(unused_sim => sim, unused_env => env)
-        end associate
+        type(health_problem_t) :: problem
+        character(len=:), allocatable :: message, path, errmsg
+        character(len=256) :: where
+        integer :: reporter, stat
+        type(h5_file_t) :: file
+        if (sim%first_dt <= 0.0_wp) sim%first_dt = sim%last_limits%dt
+        call check_particles(sim%cfg%health, sim%phys%rho0, sim%solids, sim%p, problem)
+        call check_timestep(sim%cfg%health, sim%first_dt, sim%last_limits%dt, problem)
+        if (global_max(env, int(problem%code, i8)) == HEALTH_OK) return
+        reporter = int(-global_max(env, int(merge(-env%rank, -huge(0), &
+            problem%code /= HEALTH_OK), i8)))
+        write(where, '(a,i0,a,es12.5,a,i0,a,3es13.5,a)') ' at step ', sim%step, ', t = ', &
+            sim%time, ' s (particle ', problem%id, ' at', problem%x, ' m)'
+        if (problem%id == 0) write(where, '(a,i0,a,es12.5,a)') ' at step ', sim%step, &
+            ', t = ', sim%time, ' s'
+        message = problem%what // trim(where)
+        call broadcast_text(env, message, reporter)
+        path = trim(sim%cfg%output%output_dir) // '/' // trim(sim%cfg%run%case_name) // &
+            '_failure_' // step_text(sim%step) // '.h5'
+        call snapshot_begin(env, sim%p, path, sim%time, sim%step, sim%cfg%domain%dimension, &
+            code_version, sim%input_text, file, stat, errmsg)
+        if (stat == 0) then
+            call h5_write_attribute(file, 'failure', message)
+            call snapshot_end(env, path, file, stat, errmsg)
+        end if
+        if (stat == 0) then
+            message = message // '; failure snapshot ' // path
+        else
+            message = message // '; the failure snapshot could not be written: ' // errmsg
+        end if
+        call fatal_collective('health check', message, status=3)
     end subroutine check_health
+
+    !> A step number with at least 6 digits, as in snapshot names.
+    function step_text(step) result(text)
+        integer(i8), intent(in) :: step
+        character(len=:), allocatable :: text
+        character(len=32) :: digits
+        write(digits, '(i0.6)') step
+        text = trim(digits)
+    end function step_text
 
     !> Density is integrated (continuity) unless it is summed from the neighbours.
     logical function integrated_density(sim)

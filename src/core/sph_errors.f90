@@ -30,9 +30,11 @@ contains
         have_comm = .true.
     end subroutine set_error_comm
 
-    !> Collective stop: same condition on every rank; one message from rank 0; exit status 1.
-    subroutine fatal_collective(where, message)
+    !> Collective stop: same condition on every rank; one message from rank 0; exit status 1
+    !> (bad input, set-up), or `status` (3: the run became unhealthy, see sph_health).
+    subroutine fatal_collective(where, message, status)
         character(len=*), intent(in) :: where, message
+        integer, intent(in), optional :: status
         integer :: rank, ierr
         logical :: initialized, finalized
 
@@ -50,7 +52,11 @@ contains
             if (have_comm) call MPI_Barrier(error_comm, ierr)
             call MPI_Finalize(ierr)
         end if
-        call exit_process(1)
+        if (present(status)) then
+            call exit_process(status)
+        else
+            call exit_process(1)
+        end if
     end subroutine fatal_collective
 
     !> Abort from a single rank: prints the rank and takes the whole job down.

@@ -15,14 +15,15 @@ module sph_config
         read_numerics_input
     use sph_parallel_input, only: parallel_input_t, read_parallel_input
     use sph_restart_input, only: restart_input_t, read_restart_input
+    use sph_health_input, only: health_input_t, read_health_input
     implicit none
     private
     public :: config_t, config_parse, config_to_text, config_read_file, config_keys
     public :: n_faces, face_names, known_groups
 
     !> Groups in the order they are read and written back.
-    character(len=8), parameter :: known_groups(7) = [character(len=8) :: &
-        'run', 'output', 'domain', 'fluid', 'numerics', 'parallel', 'restart']
+    character(len=8), parameter :: known_groups(8) = [character(len=8) :: &
+        'run', 'output', 'domain', 'fluid', 'numerics', 'parallel', 'restart', 'health']
     !> Groups that may be given several times (their owner reads a list); none yet.
     character(len=8), parameter :: list_groups(0) = [character(len=8) ::]
 
@@ -36,6 +37,7 @@ module sph_config
         type(numerics_input_t) :: numerics
         type(parallel_input_t) :: parallel
         type(restart_input_t) :: restart
+        type(health_input_t) :: health
         character(len=:), allocatable :: source_file
         character(len=:), allocatable :: resolved   !< namelist text of every key's value
     end type config_t
@@ -114,6 +116,7 @@ contains
         call read_numerics_input(grp(5), cfg%numerics)
         call read_parallel_input(grp(6), cfg%parallel)
         call read_restart_input(grp(7), cfg%restart)
+        call read_health_input(grp(8), cfg%health)
         if (sum(grp%n_errors) == 0) call check_analytic_channel(grp(1), cfg%run%analytic, &
             cfg%domain, cfg%fluid%body_force)
     end subroutine read_groups

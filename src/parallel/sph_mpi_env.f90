@@ -174,21 +174,24 @@ contains
         if (env%rank == 0) s = 0
     end function exclusive_scan_i8
 
-    !> Broadcast a deferred-length string from rank 0 (its length is sent first).
-    subroutine broadcast_text(env, text)
+    !> Broadcast a deferred-length string from rank 0, or from `root` (its length first).
+    subroutine broadcast_text(env, text, root)
         type(mpi_env_t), intent(in) :: env
         character(len=:), allocatable, intent(inout) :: text
-        integer :: n, ierr
+        integer, intent(in), optional :: root
+        integer :: n, ierr, from
+        from = 0
+        if (present(root)) from = root
         n = 0
-        if (env%rank == 0) n = len(text)
-        call MPI_Bcast(n, 1, MPI_INTEGER, 0, env%comm, ierr)
+        if (env%rank == from) n = len(text)
+        call MPI_Bcast(n, 1, MPI_INTEGER, from, env%comm, ierr)
         call check_mpi(ierr, 'broadcast_text')
-        if (env%rank /= 0) then
+        if (env%rank /= from) then
             if (allocated(text)) deallocate(text)
             allocate(character(len=n) :: text)
         end if
         if (n > 0) then
-            call MPI_Bcast(text, n, MPI_CHARACTER, 0, env%comm, ierr)
+            call MPI_Bcast(text, n, MPI_CHARACTER, from, env%comm, ierr)
             call check_mpi(ierr, 'broadcast_text')
         end if
     end subroutine broadcast_text

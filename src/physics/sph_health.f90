@@ -1,0 +1,86 @@
+!> Cheap checks of a run's health, made after every step: non-finite values, a fluid particle
+!> inside a solid (outside the fluid region), a fluid density outside a band around rho0, a
+!> collapsing time step. No MPI here: the stepper agrees on the verdict across ranks, writes a
+!> failure snapshot and stops every rank.
+module sph_health
+    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
+    use sph_kinds, only: wp, i8
+    use sph_particles, only: particles_t, KIND_FLUID
+    use sph_solids, only: solids_t, deepest_solid
+    use sph_health_input, only: health_input_t
+    implicit none
+    private
+    public :: health_problem_t, check_particles, check_timestep
+    public :: HEALTH_OK, HEALTH_NONFINITE, HEALTH_IN_SOLID, HEALTH_DENSITY, HEALTH_TIMESTEP
+
+    integer, parameter :: HEALTH_OK = 0
+    integer, parameter :: HEALTH_NONFINITE = 1   !< a position, velocity or density is NaN/Inf
+    integer, parameter :: HEALTH_IN_SOLID = 2    !< a fluid particle inside a wall or body
+    integer, parameter :: HEALTH_DENSITY = 3     !< a fluid density outside the band
+    integer, parameter :: HEALTH_TIMESTEP = 4    !< the time step collapsed
+
+    !> The first problem found on this rank (code HEALTH_OK when none).
+    type :: health_problem_t
+        integer :: code = HEALTH_OK
+        integer(i8) :: id = 0
+        real(wp) :: x(3) = 0.0_wp
+        character(len=:), allocatable :: what
+    end type health_problem_t
+
+contains
+
+    !> Check every owned particle; the first problem found is returned.
+    subroutine check_particles(limits, rho0, solids, p, problem)
+        type(health_input_t), intent(in) :: limits
+        real(wp), intent(in) :: rho0
+        type(solids_t), intent(in) :: solids
+        type(particles_t), intent(in) :: p
+        type(health_problem_t), intent(out) :: problem
+        integer :: i, k
+        character(len=96) :: text
+        problem%what = ''
+        do i = 1, p%n_owned
+            if (.not. (all(ieee_is_finite(p%x(:, i))) .and. all(ieee_is_finite(p%v(:, i))) &
+                .and. ieee_is_finite(p%rho(i)))) then
+                call found(HEALTH_NONFINITE, 'a non-finite position, velocity or density')
+                return
+            end if
+            if (p%kind(i) /= KIND_FLUID) cycle
+            k = deepest_solid(solids, p%x(:, i), 0.0_wp)
+            if (k > 0) then
+                call found(HEALTH_IN_SOLID, 'a fluid particle inside the solid ' // &
+                    trim(solids%list(k)%name))
+                return
+            end if
+            if (abs(p%rho(i) - rho0) > limits%density_band * rho0) then
+                write(text, '(a,es12.5,a,f6.3,a)') 'fluid density ', p%rho(i), &
+                    ' kg/m^3 outside rho0 (1 +- ', limits%density_band, ')'
+                call found(HEALTH_DENSITY, trim(text) // ' (&health density_band)')
+                return
+            end if
+        end do
+    contains
+        subroutine found(code, what)
+            integer, intent(in) :: code
+            character(len=*), intent(in) :: what
+            problem%code = code
+            problem%id = p%id(i)
+            problem%x = p%x(:, i)
+            problem%what = what
+        end subroutine found
+    end subroutine check_particles
+
+    !> The time step against the first one of the run.
+    subroutine check_timestep(limits, first_dt, dt, problem)
+        type(health_input_t), intent(in) :: limits
+        real(wp), intent(in) :: first_dt, dt
+        type(health_problem_t), intent(inout) :: problem
+        character(len=128) :: text
+        if (problem%code /= HEALTH_OK .or. limits%timestep_floor <= 0.0_wp) return
+        if (dt >= limits%timestep_floor * first_dt) return
+        write(text, '(a,es10.3,a,es10.3,a)') 'the time step collapsed to ', dt, &
+            ' s from ', first_dt, ' s (&health timestep_floor)'
+        problem%code = HEALTH_TIMESTEP
+        problem%what = trim(text)
+    end subroutine check_timestep
+end module sph_health
