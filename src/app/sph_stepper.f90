@@ -244,11 +244,11 @@ contains
         end if
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
         if (sim%phys%viscosity == VISCOSITY_STRAIN_RATE) then
-            call compute_strain_rate(sim%phys, sim%p, sim%nl)
+            call compute_strain_rate(sim%phys, sim%p, sim%nl, sim%solids)
             call halo_refresh(sim%halo, env, sim%p, HALO_STRAIN)
             call build_mirrors(sim%phys, sim%solids, sim%p)
         end if
-        call compute_rates(sim%phys, sim%p, sim%nl)
+        call compute_rates(sim%phys, sim%p, sim%nl, sim%solids)
     end subroutine evaluate_rates
 
     !> Time-step limit for the current rates (collective).

@@ -4,18 +4,28 @@
 !> normals and distances are all made from these answers, so a new shape (a circle, a sphere,
 !> particles from a file) is a new case here, not a change to the wall models.
 !>
-!> Today: the half-spaces behind the box faces that are walls (SOLID_PLANE). Solids are
-!> numbered 1..n in the order given; particles carry the number of the solid they belong to
-!> (0 for fluid).
+!> Shapes: the half-spaces behind the box faces that are walls (SOLID_PLANE), and bodies inside
+!> the box (&body): circles (2D), spheres, cylinders along a coordinate axis (3D), axis-aligned
+!> rectangles (2D) and boxes (3D). Distances are exact (Euclidean outside the corners of a
+!> rectangle or box, the nearest face's inside); a body's distance takes the nearest periodic
+!> image of its centre along the periodic axes (period /= 0), so a body may cross a periodic
+!> face. Solids are numbered 1..n in the order given; particles carry the number of the solid
+!> they belong to (0 for fluid).
 module sph_solids
     use sph_kinds, only: wp
     implicit none
     private
     public :: solid_t, solids_t, solids_add_plane, solid_distance, solid_normal
-    public :: solid_velocity, solid_reflect, deepest_solid
-    public :: SOLID_PLANE
+    public :: solid_velocity, solid_reflect, deepest_solid, solids_add_body
+    public :: SOLID_PLANE, SOLID_CIRCLE, SOLID_SPHERE, SOLID_CYLINDER, SOLID_RECTANGLE
+    public :: SOLID_BOX
 
     integer, parameter :: SOLID_PLANE = 1   !< the half-space behind a plane (a wall face)
+    integer, parameter :: SOLID_CIRCLE = 2  !< a disc (2D): centre, radius
+    integer, parameter :: SOLID_SPHERE = 3  !< a ball (3D): centre, radius
+    integer, parameter :: SOLID_CYLINDER = 4    !< (3D) centre, radius, axis; infinitely long
+    integer, parameter :: SOLID_RECTANGLE = 5   !< (2D) axis-aligned: lo, hi corners
+    integer, parameter :: SOLID_BOX = 6         !< (3D) axis-aligned: lo, hi corners
 
     type :: solid_t
         integer :: shape = SOLID_PLANE
@@ -24,10 +34,16 @@ module sph_solids
         real(wp) :: normal(3) = 0.0_wp      !< plane: unit normal into the fluid
         real(wp) :: velocity(3) = 0.0_wp    !< rigid translation (a sliding wall, a lid)
         integer :: face = 0                 !< the box face it stands for, 0 for a body
+        real(wp) :: centre(3) = 0.0_wp      !< bodies: centre (rectangle, box: of lo..hi)
+        real(wp) :: radius = 0.0_wp         !< circle, sphere, cylinder
+        real(wp) :: half(3) = 0.0_wp        !< rectangle, box: half side lengths
+        integer :: axis = 3                 !< cylinder: the axis it runs along (circle: 3)
+        real(wp) :: period(3) = 0.0_wp      !< box length along periodic axes, 0 otherwise
     end type solid_t
 
     type :: solids_t
         integer :: dim = 2
+        real(wp) :: period(3) = 0.0_wp      !< box length along periodic axes, 0 otherwise
         type(solid_t), allocatable :: list(:)
     end type solids_t
 
@@ -51,22 +67,114 @@ contains
         solids%list = [solids%list, s]
     end subroutine solids_add_plane
 
+    !> Append a body. shape: SOLID_CIRCLE, SOLID_SPHERE, SOLID_CYLINDER (centre, radius,
+    !> axis), SOLID_RECTANGLE, SOLID_BOX (lo, hi); it moves with `velocity` (rigid
+    !> translation) and sees the periodic lengths of `solids%period`.
+    subroutine solids_add_body(solids, name, shape, velocity, centre, radius, axis, lo, hi)
+        type(solids_t), intent(inout) :: solids
+        character(len=*), intent(in) :: name
+        integer, intent(in) :: shape
+        real(wp), intent(in) :: velocity(3)
+        real(wp), intent(in), optional :: centre(3), radius, lo(3), hi(3)
+        integer, intent(in), optional :: axis
+        type(solid_t) :: s
+        if (.not. allocated(solids%list)) allocate(solids%list(0))
+        s%shape = shape
+        s%name = name
+        s%velocity = velocity
+        s%period = solids%period
+        select case (shape)
+        case (SOLID_RECTANGLE, SOLID_BOX)
+            s%centre = 0.5_wp * (lo + hi)
+            s%half = 0.5_wp * (hi - lo)
+            if (shape == SOLID_RECTANGLE) then
+                s%centre(3) = 0.0_wp
+                s%half(3) = huge(1.0_wp)    ! a rectangle is a box without a z extent
+            end if
+        case default
+            s%centre = centre
+            s%radius = radius
+            s%axis = 3
+            if (shape == SOLID_CYLINDER) s%axis = axis
+        end select
+        s%point = s%centre
+        solids%list = [solids%list, s]
+    end subroutine solids_add_body
+
+    !> x - centre of the body's nearest periodic image (each periodic axis on its own: the
+    !> distance of every shape here grows with |offset| along each axis separately).
+    pure function body_offset(solid, x) result(r)
+        type(solid_t), intent(in) :: solid
+        real(wp), intent(in) :: x(3)
+        real(wp) :: r(3)
+        integer :: a
+        r = x - solid%centre
+        do a = 1, 3
+            if (solid%period(a) > 0.0_wp) r(a) = r(a) - solid%period(a) * anint(r(a) / &
+                solid%period(a))
+        end do
+        select case (solid%shape)
+        case (SOLID_CIRCLE, SOLID_RECTANGLE)
+            r(3) = 0.0_wp
+        case (SOLID_CYLINDER)
+            r(solid%axis) = 0.0_wp
+        end select
+    end function body_offset
+
     !> Signed distance of x from the surface: > 0 in the fluid, < 0 inside the solid.
     pure real(wp) function solid_distance(solid, x)
         type(solid_t), intent(in) :: solid
         real(wp), intent(in) :: x(3)
+        real(wp) :: r(3), q(3)
         select case (solid%shape)
+        case (SOLID_CIRCLE, SOLID_SPHERE, SOLID_CYLINDER)
+            r = body_offset(solid, x)
+            solid_distance = norm2(r) - solid%radius
+        case (SOLID_RECTANGLE, SOLID_BOX)
+            r = body_offset(solid, x)
+            q = abs(r) - solid%half
+            if (any(q > 0.0_wp)) then
+                solid_distance = norm2(max(q, 0.0_wp))
+            else
+                solid_distance = maxval(q)
+            end if
         case default   ! SOLID_PLANE
             solid_distance = dot_product(solid%normal, x - solid%point)
         end select
     end function solid_distance
 
-    !> Unit normal into the fluid at the surface point nearest x (curved shapes use x).
+    !> Unit normal into the fluid at the surface point nearest x (curved shapes use x). At a
+    !> body's centre, where every direction is nearest, the first axis it spans is taken.
     pure function solid_normal(solid, x) result(normal)
         type(solid_t), intent(in) :: solid
         real(wp), intent(in) :: x(3)
         real(wp) :: normal(3)
+        real(wp) :: r(3), q(3), length
+        integer :: a
         select case (solid%shape)
+        case (SOLID_CIRCLE, SOLID_SPHERE, SOLID_CYLINDER)
+            r = body_offset(solid, x)
+            length = norm2(r)
+            if (length > 0.0_wp) then
+                normal = r / length
+            else
+                normal = 0.0_wp
+                normal(merge(2, 1, solid%axis == 1 .and. solid%shape == SOLID_CYLINDER)) = &
+                    1.0_wp
+            end if
+        case (SOLID_RECTANGLE, SOLID_BOX)
+            r = body_offset(solid, x)
+            q = abs(r) - solid%half
+            normal = 0.0_wp
+            if (any(q > 0.0_wp)) then
+                ! outside: from the nearest point of the surface (a face, edge or corner)
+                normal = sign(1.0_wp, r) * max(q, 0.0_wp)
+                normal = normal / norm2(normal)
+            else
+                ! inside: the nearest face's
+                a = maxloc(q, dim=1)
+                normal(a) = sign(1.0_wp, r(a))
+            end if
         case default
             normal = solid%normal
         end select

@@ -16,22 +16,29 @@ module sph_walls
     use sph_particles, only: particles_t, particles_reserve, KIND_FLUID, KIND_MIRROR
     use sph_physics, only: physics_t, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR
     use sph_solids, only: solids_t, solid_t, solids_add_plane, solid_distance, solid_normal, &
-        solid_velocity, solid_reflect, deepest_solid
+        solid_velocity, solid_reflect, deepest_solid, solids_add_body, SOLID_CIRCLE, &
+        SOLID_SPHERE, SOLID_CYLINDER, SOLID_RECTANGLE, SOLID_BOX
     implicit none
     private
     public :: solids_from_config, wall_layers, wall_lattice_ranges, wall_site, build_mirrors
+    public :: body_surface_sites
 
 contains
 
     !> The solids of a configuration: the half-space behind every box face that is a wall,
-    !> in face order (xlo, xhi, ylo, yhi, zlo, zhi).
+    !> in face order (xlo, xhi, ylo, yhi, zlo, zhi), then one solid per &body in file order.
     function solids_from_config(cfg) result(solids)
         type(config_t), intent(in) :: cfg
         type(solids_t) :: solids
-        integer :: f, axis, dim
+        integer :: f, axis, dim, b, shape
         real(wp) :: point(3), normal(3), velocity(3)
         dim = cfg%domain%dimension
         solids%dim = dim
+        solids%period = 0.0_wp
+        do axis = 1, dim
+            if (cfg%domain%is_periodic(axis)) solids%period(axis) = &
+                cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis)
+        end do
         allocate(solids%list(0))
         do f = 1, 2 * dim
             if (.not. cfg%domain%is_wall(f)) cycle
@@ -50,7 +57,109 @@ contains
             call solids_add_plane(solids, 'wall ' // trim(face_names(f)), point, normal, &
                 velocity, face=f)
         end do
+        if (.not. allocated(cfg%bodies)) return
+        do b = 1, size(cfg%bodies)
+            associate (body => cfg%bodies(b))
+                select case (trim(body%shape))
+                case ('circle'); shape = SOLID_CIRCLE
+                case ('sphere'); shape = SOLID_SPHERE
+                case ('cylinder'); shape = SOLID_CYLINDER
+                case ('rectangle'); shape = SOLID_RECTANGLE
+                case default; shape = SOLID_BOX
+                end select
+                velocity = 0.0_wp
+                velocity(1:dim) = body%velocity(1:dim)
+                call solids_add_body(solids, body%name, shape, velocity, centre=body%centre, &
+                    radius=body%radius, axis=index('xyz', body%axis), lo=body%lo, hi=body%hi)
+            end associate
+        end do
     end function solids_from_config
+
+    !> Sites on a body's surface at a spacing of about dx, with the body's normal there (the
+    !> thesis type-1 particles of a body): circles by angle; spheres by rings of latitude, each
+    !> ring by angle; cylinders by angle on rings at the lattice positions along their axis
+    !> (box_lo..box_hi); rectangles and boxes on a grid over each face, corners and edges
+    !> skipped as on the box walls. Positions are not wrapped into a periodic box.
+    subroutine body_surface_sites(solid, dx, box_lo, box_hi, x, normal)
+        type(solid_t), intent(in) :: solid
+        real(wp), intent(in) :: dx, box_lo(3), box_hi(3)
+        real(wp), allocatable, intent(out) :: x(:, :), normal(:, :)
+        real(wp), parameter :: pi = acos(-1.0_wp)
+        integer :: n, k, i, m, n_theta, n_phi, n_along, a, t1, t2, side, n1, n2, dims
+        real(wp) :: theta, phi, p(3), c(3), r
+        real(wp), allocatable :: buf(:, :)
+        allocate(buf(3, 0))
+        c = solid%centre
+        r = solid%radius
+        select case (solid%shape)
+        case (SOLID_CIRCLE)
+            n = max(3, nint(2.0_wp * pi * r / dx))
+            do k = 1, n
+                theta = 2.0_wp * pi * (real(k, wp) - 0.5_wp) / real(n, wp)
+                call push([c(1) + r * cos(theta), c(2) + r * sin(theta), 0.0_wp])
+            end do
+        case (SOLID_SPHERE)
+            n_theta = max(2, nint(pi * r / dx))
+            do i = 1, n_theta
+                theta = pi * (real(i, wp) - 0.5_wp) / real(n_theta, wp)
+                n_phi = max(1, nint(2.0_wp * pi * r * sin(theta) / dx))
+                do k = 1, n_phi
+                    phi = 2.0_wp * pi * (real(k, wp) - 0.5_wp) / real(n_phi, wp)
+                    call push(c + r * [sin(theta) * cos(phi), sin(theta) * sin(phi), &
+                        cos(theta)])
+                end do
+            end do
+        case (SOLID_CYLINDER)
+            a = solid%axis
+            t1 = mod(a, 3) + 1
+            t2 = mod(a + 1, 3) + 1
+            n = max(3, nint(2.0_wp * pi * r / dx))
+            n_along = max(1, nint((box_hi(a) - box_lo(a)) / dx))
+            do m = 1, n_along
+                do k = 1, n
+                    theta = 2.0_wp * pi * (real(k, wp) - 0.5_wp) / real(n, wp)
+                    p(a) = box_lo(a) + (real(m, wp) - 0.5_wp) * dx
+                    p(t1) = c(t1) + r * cos(theta)
+                    p(t2) = c(t2) + r * sin(theta)
+                    call push(p)
+                end do
+            end do
+        case (SOLID_RECTANGLE, SOLID_BOX)
+            dims = merge(2, 3, solid%shape == SOLID_RECTANGLE)
+            do a = 1, dims
+                t1 = merge(2, 1, a == 1)
+                t2 = 6 - a - t1
+                n1 = max(1, nint(2.0_wp * solid%half(t1) / dx))
+                n2 = 1
+                if (dims == 3) n2 = max(1, nint(2.0_wp * solid%half(t2) / dx))
+                do side = -1, 1, 2
+                    do m = 1, n2
+                        do k = 1, n1
+                            p = 0.0_wp
+                            p(a) = c(a) + real(side, wp) * solid%half(a)
+                            p(t1) = c(t1) - solid%half(t1) + (real(k, wp) - 0.5_wp) * &
+                                2.0_wp * solid%half(t1) / real(n1, wp)
+                            if (dims == 3) p(t2) = c(t2) - solid%half(t2) + &
+                                (real(m, wp) - 0.5_wp) * 2.0_wp * solid%half(t2) / real(n2, wp)
+                            call push(p)
+                        end do
+                    end do
+                end do
+            end do
+        end select
+        x = buf
+        allocate(normal(3, size(x, 2)))
+        do k = 1, size(x, 2)
+            normal(:, k) = solid_normal(solid, x(:, k))
+        end do
+
+    contains
+
+        subroutine push(point)
+            real(wp), intent(in) :: point(3)
+            buf = reshape([buf, point], [3, size(buf, 2) + 1])
+        end subroutine push
+    end subroutine body_surface_sites
 
     !> Layers of Morris wall particles needed to fill the kernel support.
     integer function wall_layers(phys)

@@ -1,14 +1,15 @@
 !> Initial particles: fluid at rest on a lattice of spacing dx filling the box minus the
 !> solids, and the wall particles of the chosen wall model (Morris: the lattice sites inside a
-!> solid to one kernel support of depth, behind the box faces and inside bodies alike). Each
-!> rank makes only the particles its subdomain owns; global ids come from lattice indices, so
-!> they do not depend on the rank count.
+!> solid to one kernel support of depth, behind the box faces and inside bodies alike; thesis
+!> type-1: one layer on each wall plane and on each body's surface). Each rank makes only the
+!> particles its subdomain owns; global ids come from lattice indices, so they do not depend
+!> on the rank count.
 module sph_initial
     use sph_kinds, only: wp, i8
     use sph_config, only: config_t
     use sph_particles, only: particles_t, particles_reserve, KIND_FLUID, KIND_WALL
     use sph_physics, only: physics_t, WALLS_MORRIS, WALLS_REPULSIVE, WALLS_REPULSIVE_MIRROR
-    use sph_walls, only: wall_layers, wall_lattice_ranges, wall_site
+    use sph_walls, only: wall_layers, wall_lattice_ranges, wall_site, body_surface_sites
     use sph_solids, only: solids_t, solid_velocity, deepest_solid
     use sph_domain, only: domain_t, domain_owner
     use sph_eos, only: eos_pressure
@@ -120,7 +121,8 @@ contains
             p%n_total = n
         end subroutine add_particle
 
-        !> Sites on each wall plane at the tangential lattice positions (corners skipped).
+        !> Sites on each wall plane at the tangential lattice positions (corners skipped), then
+        !> on each body's surface (body_surface_sites).
         subroutine add_type1_layers(id_base)
             integer(i8), intent(in) :: id_base
             integer :: s, ax, t1, t2, a, b, na, nb
@@ -128,6 +130,7 @@ contains
             real(wp) :: x(3)
             id = id_base + 1000000000_i8   ! clear of every fluid id
             do s = 1, size(solids%list)
+                if (solids%list(s)%face == 0) cycle   ! a body: below
                 associate (plane => solids%list(s))
                     ax = (plane%face + 1) / 2
                     t1 = merge(2, 1, ax == 1)
@@ -151,6 +154,32 @@ contains
                     end do
                 end associate
             end do
+            do s = 1, size(solids%list)
+                if (solids%list(s)%face /= 0) cycle
+                call add_body_surface(s, id)
+            end do
         end subroutine add_type1_layers
+
+        subroutine add_body_surface(s, id)
+            integer, intent(in) :: s
+            integer(i8), intent(inout) :: id
+            real(wp), allocatable :: xs(:, :), ns(:, :)
+            real(wp) :: x(3), length
+            integer :: q, ax
+            call body_surface_sites(solids%list(s), cfg%domain%dx, cfg%domain%box_lo, &
+                cfg%domain%box_hi, xs, ns)
+            do q = 1, size(xs, 2)
+                id = id + 1
+                x = xs(:, q)
+                do ax = 1, cfg%domain%dimension   ! into the box across periodic faces
+                    if (.not. cfg%domain%is_periodic(ax)) cycle
+                    length = cfg%domain%box_hi(ax) - cfg%domain%box_lo(ax)
+                    x(ax) = cfg%domain%box_lo(ax) + modulo(x(ax) - cfg%domain%box_lo(ax), length)
+                end do
+                if (domain_owner(domain, x) /= domain%rank) cycle
+                call add_particle(x, id, KIND_WALL, ns(:, q), 0.0_wp, &
+                    solid_velocity(solids%list(s), x), s)
+            end do
+        end subroutine add_body_surface
     end subroutine create_lattice_particles
 end module sph_initial

@@ -16,16 +16,18 @@ module sph_config
     use sph_parallel_input, only: parallel_input_t, read_parallel_input
     use sph_restart_input, only: restart_input_t, read_restart_input
     use sph_health_input, only: health_input_t, read_health_input
+    use sph_body_input, only: body_input_t, read_body_inputs, check_body_wall_model
     implicit none
     private
     public :: config_t, config_parse, config_to_text, config_read_file, config_keys
-    public :: n_faces, face_names, known_groups
+    public :: n_faces, face_names, known_groups, list_groups
 
-    !> Groups in the order they are read and written back.
+    !> Groups given once (or left out), in the order they are read and written back.
     character(len=8), parameter :: known_groups(8) = [character(len=8) :: &
         'run', 'output', 'domain', 'fluid', 'numerics', 'parallel', 'restart', 'health']
-    !> Groups that may be given several times (their owner reads a list); none yet.
-    character(len=8), parameter :: list_groups(0) = [character(len=8) ::]
+    !> Groups that may be given several times (their owner reads a list), written back after
+    !> the others: &body, one per solid body inside the box.
+    character(len=8), parameter :: list_groups(1) = [character(len=8) :: 'body']
 
     !> The resolved run configuration (defaults filled in, validated); set by config_parse
     !> only, so its resolved text always matches it.
@@ -38,6 +40,7 @@ module sph_config
         type(parallel_input_t) :: parallel
         type(restart_input_t) :: restart
         type(health_input_t) :: health
+        type(body_input_t), allocatable :: bodies(:)   !< &body groups, in file order
         character(len=:), allocatable :: source_file
         character(len=:), allocatable :: resolved   !< namelist text of every key's value
     end type config_t
@@ -76,23 +79,31 @@ contains
         character(len=:), allocatable, intent(out) :: errmsg
         type(nml_file_t) :: file
         type(nml_group_t) :: grp(size(known_groups))
+        type(nml_group_t), allocatable :: bodies(:)
         integer :: g
 
         cfg%source_file = source_name
         call nml_parse(text, source_name, file, stat, errmsg)
         if (stat /= 0) return
         errmsg = ''
-        call file%check_groups(known_groups, list_groups, stat, errmsg)
+        call file%check_groups([known_groups, list_groups], list_groups, stat, errmsg)
         do g = 1, size(known_groups)
             grp(g) = file%take(trim(known_groups(g)))
         end do
-        call read_groups(grp, cfg)
+        bodies = file%take_all('body')
+        call read_groups(grp, bodies, cfg)
         cfg%resolved = ''
         do g = 1, size(known_groups)
             call grp(g)%finish()
             stat = stat + grp(g)%n_errors
             errmsg = errmsg // grp(g)%errors
             cfg%resolved = cfg%resolved // grp(g)%to_text()
+        end do
+        do g = 1, size(bodies)
+            call bodies(g)%finish()
+            stat = stat + bodies(g)%n_errors
+            errmsg = errmsg // bodies(g)%errors
+            cfg%resolved = cfg%resolved // bodies(g)%to_text()
         end do
         if (stat /= 0) errmsg = 'invalid input in ' // source_name // ':' // errmsg
     end subroutine config_parse
@@ -106,8 +117,8 @@ contains
     end function config_to_text
 
     !> Hand each group to its owner, then the checks that span groups.
-    subroutine read_groups(grp, cfg)
-        type(nml_group_t), intent(inout) :: grp(:)
+    subroutine read_groups(grp, bodies, cfg)
+        type(nml_group_t), intent(inout) :: grp(:), bodies(:)
         type(config_t), intent(inout) :: cfg
         call read_run_input(grp(1), cfg%run)
         call read_output_input(grp(2), cfg%run%t_end, cfg%output)
@@ -117,6 +128,9 @@ contains
         call read_parallel_input(grp(6), cfg%parallel)
         call read_restart_input(grp(7), cfg%restart)
         call read_health_input(grp(8), cfg%health)
+        call read_body_inputs(bodies, cfg%domain, cfg%bodies)
+        if (sum(grp%n_errors) == 0) call check_body_wall_model(bodies, cfg%bodies, &
+            cfg%numerics%wall_model)
         if (sum(grp%n_errors) == 0) call check_analytic_channel(grp(1), cfg%run%analytic, &
             cfg%domain, cfg%fluid%body_force)
     end subroutine read_groups
@@ -126,17 +140,24 @@ contains
         type(nml_key_t), allocatable :: keys(:)
         type(nml_file_t) :: file
         type(config_t) :: cfg
-        type(nml_group_t) :: grp(size(known_groups))
+        type(nml_group_t) :: grp(size(known_groups)), lists(size(list_groups))
         integer :: stat, g
         character(len=:), allocatable :: errmsg
         call nml_parse('', 'defaults', file, stat, errmsg)
         do g = 1, size(known_groups)
             grp(g) = file%take(trim(known_groups(g)))
         end do
-        call read_groups(grp, cfg)
+        ! one empty instance of each repeated group declares its keys
+        do g = 1, size(list_groups)
+            lists(g) = file%take(trim(list_groups(g)))
+        end do
+        call read_groups(grp, lists, cfg)
         allocate(keys(0))
         do g = 1, size(known_groups)
             keys = [keys, grp(g)%keys]
+        end do
+        do g = 1, size(list_groups)
+            keys = [keys, lists(g)%keys]
         end do
     end function config_keys
 end module sph_config

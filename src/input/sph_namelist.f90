@@ -48,6 +48,7 @@ module sph_namelist
         character(len=:), allocatable :: resolved !< `    key = value` lines
         character(len=:), allocatable :: errors  !< one line per error, each starting nl
         integer :: n_errors = 0
+        integer :: instance = 0                  !< of a repeated group (1, 2, ...); 0: single
     contains
         procedure :: get_real, get_int, get_logical, get_string
         procedure :: get_real_array, get_real_matrix, get_string_array, get_real_list
@@ -427,12 +428,17 @@ contains
         end do
     end function take_all
 
-    !> Record an error against a key of this group: `  &group key: what`.
+    !> Record an error against a key of this group: `  &group key: what`, or for an instance
+    !> of a repeated group `  &group N key: what` (N counts the instances in file order).
     subroutine group_error(self, key, what)
         class(nml_group_t), intent(inout) :: self
         character(len=*), intent(in) :: key, what
+        character(len=:), allocatable :: label
         self%n_errors = self%n_errors + 1
-        self%errors = self%errors // nl // '  &' // self%name // ' ' // key // ': ' // what
+        label = '&' // self%name
+        if (self%instance > 0) label = label // ' ' // itoa(self%instance) // ' (line ' // &
+            itoa(self%line) // ')'
+        self%errors = self%errors // nl // '  ' // label // ' ' // key // ': ' // what
     end subroutine group_error
 
     !> After the owner has declared its keys: every key given but not declared is an error,

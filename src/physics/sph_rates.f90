@@ -12,6 +12,10 @@
 !> Loops run over the owned particles i with neighbours j among owned, ghost and mirror
 !> particles. Every pair term is antisymmetric in i and j, so momentum is conserved to
 !> round-off. No MPI here: the driver refreshes ghosts between the stages.
+!> Morris walls need the distances of the fluid and the wall particle from the wall; with the
+!> solids given, a curved body's are measured as Morris et al. (1997, sec. 5) do: the fluid
+!> particle's is the body's signed distance at it, the wall particle's the distance behind the
+!> tangent plane at the surface point nearest the fluid particle.
 module sph_rates
     use sph_kinds, only: wp
     use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL
@@ -19,6 +23,7 @@ module sph_rates
     use sph_physics, only: physics_t, VISCOSITY_MORRIS, VISCOSITY_STRAIN_RATE, WALLS_MORRIS, &
         WALLS_REPULSIVE, WALLS_REPULSIVE_MIRROR
     use sph_eos, only: eos_pressure
+    use sph_solids, only: solids_t, solid_distance, solid_normal, SOLID_PLANE
     implicit none
     private
     public :: update_pressure, compute_summation_density, compute_strain_rate, compute_rates
@@ -64,6 +69,34 @@ contains
         distance_to_wall = dot_product(p%wall_normal(:, j), xi - p%x(:, j)) - p%wall_distance(j)
     end function distance_to_wall
 
+    !> Morris' beta for fluid particle i and wall particle j. A plane wall (or no solids
+    !> given) uses the plane through j stored with it; a body uses its exact distance at x_i
+    !> (d_fluid) and the depth of x_j behind the tangent plane of the surface point nearest
+    !> x_i (d_wall), which is >= 0 for the convex bodies of sph_solids.
+    pure real(wp) function wall_beta(phys, p, i, j, solids)
+        type(physics_t), intent(in) :: phys
+        type(particles_t), intent(in) :: p
+        integer, intent(in) :: i, j
+        type(solids_t), intent(in), optional :: solids
+        real(wp) :: d_fluid, d_wall, n(3)
+        logical :: curved
+        curved = .false.
+        if (present(solids)) then
+            if (p%solid(j) > 0) curved = solids%list(p%solid(j))%shape /= SOLID_PLANE
+        end if
+        if (curved) then
+            associate (body => solids%list(p%solid(j)))
+                d_fluid = solid_distance(body, p%x(:, i))
+                n = solid_normal(body, p%x(:, i))
+                d_wall = dot_product(n, p%x(:, i) - p%x(:, j)) - d_fluid
+            end associate
+            wall_beta = morris_beta(d_fluid, d_wall, phys%beta_max)
+        else
+            wall_beta = morris_beta(distance_to_wall(p, p%x(:, i), j), p%wall_distance(j), &
+                phys%beta_max)
+        end if
+    end function wall_beta
+
     !> rho_i = sum_j m_j W_ij (self included) for owned fluid particles; walls keep theirs.
     subroutine compute_summation_density(phys, p, nl)
         type(physics_t), intent(in) :: phys
@@ -88,10 +121,11 @@ contains
     !> eps^ab = sum_j m_j/rho_j (v_ji^b dW/dx^a + v_ji^a dW/dx^b)
     !>          - 2/3 delta^ab sum_j m_j/rho_j v_ji . grad W
     !> (the 2/3 of a three-dimensional fluid is kept in 2D: plane flow of a real fluid).
-    subroutine compute_strain_rate(phys, p, nl)
+    subroutine compute_strain_rate(phys, p, nl, solids)
         type(physics_t), intent(in) :: phys
         type(particles_t), intent(inout) :: p
         type(neighbour_list_t), intent(in) :: nl
+        type(solids_t), intent(in), optional :: solids   !< for Morris walls of curved bodies
         integer :: i, k, j, a, b
         real(wp) :: d(3), r, grad(3), vji(3), g(3, 3), div, beta
         do i = 1, p%n_owned
@@ -106,8 +140,7 @@ contains
                 vji = p%v(:, j) - p%v(:, i)
                 if (p%kind(j) == KIND_WALL .and. p%kind(i) == KIND_FLUID .and. &
                     phys%walls == WALLS_MORRIS) then
-                    beta = morris_beta(distance_to_wall(p, p%x(:, i), j), p%wall_distance(j), &
-                        phys%beta_max)
+                    beta = wall_beta(phys, p, i, j, solids)
                     vji = -beta * (p%v(:, i) - p%v(:, j))
                 end if
                 do b = 1, 3
@@ -126,10 +159,11 @@ contains
     end subroutine compute_strain_rate
 
     !> d rho/dt, d v/dt and d e/dt of every owned particle.
-    subroutine compute_rates(phys, p, nl)
+    subroutine compute_rates(phys, p, nl, solids)
         type(physics_t), intent(in) :: phys
         type(particles_t), intent(inout) :: p
         type(neighbour_list_t), intent(in) :: nl
+        type(solids_t), intent(in), optional :: solids   !< for Morris walls of curved bodies
         integer :: i, k, j, a
         real(wp) :: d(3), r2, r, dwdr, grad(3), vij(3), vvisc(3), pterm, coeff, beta
         real(wp) :: drho, dv(3), de, rho_i, p_i, mu_i, q, sterm(3), eps_i(3, 3), eps_j(3, 3)
@@ -181,8 +215,7 @@ contains
                 case (VISCOSITY_MORRIS)
                     vvisc = vij
                     if (p%kind(j) == KIND_WALL .and. phys%walls == WALLS_MORRIS) then
-                        beta = morris_beta(distance_to_wall(p, p%x(:, i), j), p%wall_distance(j), &
-                            phys%beta_max)
+                        beta = wall_beta(phys, p, i, j, solids)
                         vvisc = beta * vij
                     end if
                     ! (mu_i + mu_j) / (rho_i rho_j) with mu = rho nu

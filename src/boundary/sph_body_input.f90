@@ -1,0 +1,168 @@
+!> Solid bodies inside the box as read from input: one &body group per body (the group may be
+!> repeated; bodies are numbered in file order). Each body is a circle (2D), sphere (3D),
+!> cylinder along a coordinate axis (3D), or an axis-aligned rectangle (2D) or box (3D),
+!> translating at a constant velocity. Read by sph_config; turned into solids by sph_walls.
+module sph_body_input
+    use sph_kinds, only: wp
+    use sph_namelist, only: nml_group_t
+    use sph_domain_input, only: domain_input_t
+    implicit none
+    private
+    public :: body_input_t, read_body_inputs, check_body_wall_model, body_shape_names
+
+    integer, parameter :: name_len = 32
+    character(len=9), parameter :: body_shape_names(5) = [character(len=9) :: &
+        'circle', 'sphere', 'cylinder', 'rectangle', 'box']
+
+    type :: body_input_t
+        character(len=name_len) :: shape = 'circle'
+        character(len=name_len) :: name = ''
+        real(wp) :: centre(3) = 0.0_wp
+        real(wp) :: radius = 0.0_wp
+        character(len=1) :: axis = 'z'
+        real(wp) :: lo(3) = 0.0_wp, hi(3) = 0.0_wp
+        real(wp) :: velocity(3) = 0.0_wp
+    end type body_input_t
+
+contains
+
+    !> Read every &body instance (grps, in file order) and check it against the box. Errors
+    !> are recorded in the instance's group, which names the instance (`&body 2 radius: ...`).
+    subroutine read_body_inputs(grps, dom, bodies)
+        type(nml_group_t), intent(inout) :: grps(:)
+        type(domain_input_t), intent(in) :: dom
+        type(body_input_t), allocatable, intent(out) :: bodies(:)
+        integer :: b
+        allocate(bodies(size(grps)))
+        do b = 1, size(grps)
+            grps(b)%instance = b
+            call read_body(grps(b), dom, bodies(b))
+        end do
+    end subroutine read_body_inputs
+
+    subroutine read_body(grp, dom, body)
+        type(nml_group_t), intent(inout) :: grp
+        type(domain_input_t), intent(in) :: dom
+        type(body_input_t), intent(out) :: body
+        integer :: dim, a
+        logical :: round
+        real(wp) :: lo(3), hi(3), length
+        character(len=1) :: axis_text
+
+        call grp%get_string('shape', body%shape, 'circle', choices=body_shape_names, &
+            doc='circle, rectangle (2D); sphere, cylinder, box (3D)')
+        call grp%get_string('name', body%name, '', doc='name in logs (default: body N)')
+        call grp%get_real_array('centre', body%centre, 0.0_wp, unit='m', &
+            doc='centre of a circle, sphere or cylinder')
+        call grp%get_real('radius', body%radius, 0.0_wp, unit='m', &
+            doc='radius of a circle, sphere or cylinder; > 0')
+        call grp%get_string('axis', body%axis, 'z', choices=[character(len=1) :: 'x', 'y', 'z'], &
+            doc='the axis a cylinder runs along (a periodic axis)')
+        call grp%get_real_array('lo', body%lo, 0.0_wp, unit='m', &
+            doc='lower corner of a rectangle or box')
+        call grp%get_real_array('hi', body%hi, 0.0_wp, unit='m', &
+            doc='upper corner of a rectangle or box')
+        call grp%get_real_array('velocity', body%velocity, 0.0_wp, unit='m/s', &
+            doc='velocity of the body''s wall particles (they keep their place)')
+        if (len_trim(body%name) == 0) body%name = 'body ' // itoa(grp%instance)
+
+        dim = min(max(dom%dimension, 2), 3)
+        select case (trim(body%shape))
+        case ('circle', 'rectangle')
+            if (dim /= 2) call grp%error('shape', "'" // trim(body%shape) // &
+                "' is a 2D shape; in 3D use 'sphere', 'cylinder' or 'box'")
+        case ('sphere', 'cylinder', 'box')
+            if (dim /= 3) call grp%error('shape', "'" // trim(body%shape) // &
+                "' is a 3D shape; in 2D use 'circle' or 'rectangle'")
+        case default
+            return   ! already reported
+        end select
+        round = any(trim(body%shape) == [character(len=9) :: 'circle', 'sphere', 'cylinder'])
+        if (round) then
+            if (.not. (body%radius > 0.0_wp)) then
+                call grp%error('radius', 'must be > 0 (m) for a ' // trim(body%shape))
+                return
+            end if
+            lo = body%centre - body%radius
+            hi = body%centre + body%radius
+        else
+            lo = body%lo
+            hi = body%hi
+            do a = 1, dim
+                if (.not. (body%lo(a) < body%hi(a))) then
+                    call grp%error('lo(' // itoa(a) // ')', 'must be < hi(' // itoa(a) // &
+                        ') (the corners of a ' // trim(body%shape) // ')')
+                    return
+                end if
+            end do
+        end if
+        ! the body in the box: across periodic faces only, never into a wall, never wider
+        ! than its own periodic image's distance
+        do a = 1, dim
+            axis_text = achar(iachar('x') + a - 1)
+            if (trim(body%shape) == 'cylinder') then
+                if (axis_text == body%axis) then
+                    if (.not. dom%is_periodic(a)) call grp%error('axis', &
+                        'a cylinder runs the whole box along its axis, which must be ' // &
+                        'periodic (&domain boundary)')
+                    cycle
+                end if
+            end if
+            length = dom%box_hi(a) - dom%box_lo(a)
+            if (dom%is_periodic(a)) then
+                if (.not. (hi(a) - lo(a) < length)) call grp%error(extent_key(a), &
+                    'the body must be narrower than the periodic box along ' // axis_text)
+                if (.not. (body_mid(a) >= dom%box_lo(a) .and. body_mid(a) < dom%box_hi(a))) &
+                    call grp%error(extent_key(a), 'the body''s centre must lie in the box ' // &
+                        'along ' // axis_text // ' (it may cross a periodic face)')
+            else if (.not. (lo(a) > dom%box_lo(a) .and. hi(a) < dom%box_hi(a))) then
+                call grp%error(extent_key(a), 'the body must lie inside the box along ' // &
+                    axis_text // ' and not touch its walls (it may cross periodic faces only)')
+            end if
+        end do
+
+    contains
+
+        pure real(wp) function body_mid(ax)
+            integer, intent(in) :: ax
+            body_mid = 0.5_wp * (lo(ax) + hi(ax))
+        end function body_mid
+
+        function extent_key(ax) result(key)
+            integer, intent(in) :: ax
+            character(len=:), allocatable :: key
+            if (round) then
+                key = 'centre(' // itoa(ax) // '), radius'
+            else
+                key = 'lo(' // itoa(ax) // '), hi(' // itoa(ax) // ')'
+            end if
+        end function extent_key
+    end subroutine read_body
+
+    !> Mirror images (&numerics wall_model 'mirror', 'repulsive_mirror') are exact only across
+    !> plane surfaces: a curved body is refused, reported against its &body shape.
+    subroutine check_body_wall_model(grps, bodies, wall_model)
+        type(nml_group_t), intent(inout) :: grps(:)
+        type(body_input_t), intent(in) :: bodies(:)
+        character(len=*), intent(in) :: wall_model
+        integer :: b
+        if (index(wall_model, 'mirror') == 0) return
+        do b = 1, size(bodies)
+            select case (trim(bodies(b)%shape))
+            case ('circle', 'sphere', 'cylinder')
+                call grps(b)%error('shape', "a curved body ('" // trim(bodies(b)%shape) // &
+                    "') cannot be used with &numerics wall_model = '" // trim(wall_model) // &
+                    "': mirror images across a curved surface are not exact; use 'morris' " // &
+                    "or 'repulsive'")
+            end select
+        end do
+    end subroutine check_body_wall_model
+
+    pure function itoa(i) result(text)
+        integer, intent(in) :: i
+        character(len=:), allocatable :: text
+        character(len=16) :: buf
+        write(buf, '(i0)') i
+        text = trim(buf)
+    end function itoa
+end module sph_body_input
