@@ -1,29 +1,43 @@
-!> Conservative transfer of extensive quantities (mass m, momentum m v, energy m e, volume m/rho)
-!> from old particles to new particles (thesis sec. 3.2.3, eqs. 3.16-3.18). Serial, no MPI: the
-!> caller hands in the old particles with their halo and the new positions.
+!> Conservative transfer of the fields of old particles onto new particles (thesis sec. 3.2.3,
+!> eqs. 3.16-3.18). Serial, no MPI: the caller hands in the old particles with their halo and
+!> the new positions. One neighbour search (old x new pairs within the kernel support) serves
+!> both halves below.
 !>
 !> Rules:
-!>  - Spacing h: the COARSER of the two spacings (old in refinement, new in coarsening). The
-!>    interpolating kernels vanish at nonzero multiples of h; with h the finer spacing the
-!>    coarse set's sites sit on those zeros (refinement hands everything to the child at the
-!>    parent's site; in coarsening a fine particle between two kept ones hands on nothing).
-!>  - Base weights W_ij: the positive cubic B-spline (tensor product) of x_new_i - x_old_j.
-!>    M4' and Lambda2 have negative lobes; on disordered targets their per-particle sums can
-!>    come close to zero and the correction below diverged with them (prototype), so they are
-!>    kept for lattice targets (sph_interpolation_kernels).
-!>  - Each old particle j hands on exactly what it carried: sum_i w_ij = 1 (normalised over the
-!>    receiving new particles). Totals of m, m v, m e, volume are conserved to round-off.
-!>  - Linear consistency: every new particle i receives a mass-weighted centroid at its own
-!>    position, sum_j w_ij m_j (x_j - x_i) = 0, so a linear velocity (or energy) field is
-!>    reproduced. Both constraints are met together by alternating (iterative proportional
-!>    fitting): a first-order (linear) correction factor 1 + mu_i.(x_j - x_i) per new particle,
-!>    then the per-old normalisation, until the centroid residual is below tol; the last step is
-!>    always the normalisation, so conservation is exact whatever the residual. New particles
-!>    with fewer than dim+1 donors or a singular moment matrix (edges) are not corrected.
-!>  - New velocity = momentum / mass, new e = (m e) / mass. New density = mass / volume, where
-!>    the volume m/rho is transferred with the same weights: consistent with the masses, exact
-!>    (rho_new = rho_old) for any uniform density, and V_new ~ (new spacing)^dim.
-!>  - An old particle with no new particle within the support is an error (stat = 1).
+!>  - Spacing h: the COARSER of the two spacings (old in refinement, new in coarsening). With
+!>    h the finer spacing, refinement of a lattice gives alternating masses (2/3, 1/3 m per
+!>    axis); with h the coarser one, the new set is a union of 2^dim lattices of spacing h, on
+!>    each of which the B-spline sums to 1 with zero first moment, so every interior new
+!>    particle receives exactly m/2^dim.
+!>  - Base weights W_ia: the positive cubic B-spline M4 (tensor product, support 2h per axis)
+!>    of x_a - x_i (M4' and Lambda2 have negative lobes; they are kept for lattice targets,
+!>    sph_interpolation_kernels).
+!>  - Extensive quantities (mass m, energy m e, volume m/rho) are handed on by each OLD particle
+!>    i with local weights w_ia = W_ia (1 + beta_i . (x_a - x_i)) / norm_i over the new
+!>    particles a in its support, where beta_i solves the dim x dim system that makes
+!>    sum_a w_ia (x_a - x_i) = 0 and norm_i makes sum_a w_ia = 1. So each old particle hands on
+!>    exactly what it carried (mass, energy, volume conserved to round-off) with its centroid
+!>    kept in place (centre of mass conserved to round-off). If a corrected weight is negative
+!>    or the system singular (too few or one-sided new neighbours: cloud edges, walls), that old
+!>    particle falls back to the uncorrected normalised weights W_ia / sum_a W_ia (still
+!>    conservative, centroid not kept); such particles are counted (n_mass_fallback).
+!>  - Velocity is interpolated, not transferred: at each new particle a, the corrected SPH
+!>    (first-order consistent) interpolant of the old velocities with weights
+!>    u_ai = W_ia V_i (1 + gamma_a . (x_i - x_a)), V_i = m_i / rho_i, gamma_a such that
+!>    sum_i u_ai (x_i - x_a) = 0, normalised to sum 1: a linear field is reproduced to
+!>    round-off. Fewer than dim+1 donors or a singular moment matrix: Shepard (zeroth order)
+!>    weights, counted (n_velocity_fallback). Then ONE uniform correction
+!>    dv = (sum_i m_i v_i - sum_a m_a v_a) / sum_a m_a is added to every new velocity, so total
+!>    momentum is conserved exactly. For a linear field v = c + B x the interpolated momentum
+!>    is c M_new + B sum_a m_a x_a, and since mass and centre of mass are conserved this equals
+!>    the old momentum: dv is round-off and the linear field stays reproduced. When old
+!>    particles fall back (n_mass_fallback > 0) the centre of mass moves slightly and dv is
+!>    B times that shift, no longer round-off. Kinetic energy is not conserved exactly.
+!>  - Energy: e_a = (transferred m e) / m_a, so the total sum m e is conserved.
+!>  - Density: rho_a = m_a / (transferred volume), exact (rho_a = rho) for a uniform density.
+!>  - Errors: an old particle with no new particle in its support (its mass would be lost,
+!>    stat = 1), or a new particle with no old particle in its support (it would get no mass,
+!>    stat = 2). Without stat, error stop.
 module sph_remesh_interp
     use sph_kinds, only: wp
     use sph_cell_list, only: neighbour_list_t, build_neighbour_list
@@ -35,7 +49,8 @@ module sph_remesh_interp
 contains
 
     subroutine remesh_transfer(dim, h, n_old, x_old, m_old, v_old, rho_old, e_old, &
-            n_new, x_new, m_new, v_new, rho_new, e_new, stat, errmsg, iterations, residual)
+            n_new, x_new, m_new, v_new, rho_new, e_new, stat, errmsg, n_mass_fallback, &
+            n_velocity_fallback)
         integer, intent(in) :: dim, n_old, n_new
         real(wp), intent(in) :: h
         real(wp), intent(in) :: x_old(:, :), m_old(:), v_old(:, :), rho_old(:), e_old(:)
@@ -43,34 +58,34 @@ contains
         real(wp), intent(out) :: m_new(:), v_new(:, :), rho_new(:), e_new(:)
         integer, intent(out), optional :: stat
         character(len=*), intent(out), optional :: errmsg
-        integer, intent(out), optional :: iterations
-        real(wp), intent(out), optional :: residual
-        integer, parameter :: max_iter = 300
-        real(wp), parameter :: tol = 1.0e-14_wp
-        real(wp), allocatable :: x_all(:, :), w(:), b(:, :), a(:, :, :), mu(:, :), colsum(:)
-        real(wp), allocatable :: mom(:, :), en(:), vol(:)
-        integer, allocatable :: pold(:), pnew(:), donors(:)
-        logical, allocatable :: fix(:)
+        integer, intent(out), optional :: n_mass_fallback, n_velocity_fallback
+        real(wp), allocatable :: x_all(:, :), wb(:), w(:), s0(:), s1(:, :), s2(:, :, :)
+        real(wp), allocatable :: gam(:, :), en(:), vol(:)
+        integer, allocatable :: pold(:), pnew(:)
+        logical, allocatable :: first_order(:)
         type(neighbour_list_t) :: nl
-        integer :: i, j, k, p, np, it, lost
-        real(wp) :: d(3), res, f
+        integer :: i, j, k, p, np, lost, empty, n_mfb, n_vfb, r, q
+        real(wp) :: d(3), f, beta(3), mom_old(3), mom_new(3), mass_new, dv(3)
+        logical :: ok
         character(len=120) :: msg
 
         if (present(stat)) stat = 0
+        m_new(1:n_new) = 0.0_wp; v_new(:, 1:n_new) = 0.0_wp
+        rho_new(1:n_new) = 0.0_wp; e_new(1:n_new) = 0.0_wp
         allocate(x_all(3, n_old + n_new))
         x_all(:, 1:n_old) = x_old(:, 1:n_old)
         x_all(:, n_old + 1:) = x_new(:, 1:n_new)
         x_all(dim + 1:, :) = 0.0_wp
         call build_neighbour_list(x_all, n_old + n_new, n_old, dim, &
             interp_support(INTERP_M4) * h * sqrt(real(dim, wp)), nl)
+
+        ! old-new pairs with W > 0, grouped by old particle
         np = 0
         do p = 1, nl%n_pairs
             if (nl%index(p) > n_old) np = np + 1
         end do
-        allocate(w(np), pold(np), pnew(np), colsum(n_old), donors(n_new))
+        allocate(wb(np), w(np), pold(np), pnew(np))
         np = 0
-        colsum = 0.0_wp
-        donors = 0
         do j = 1, n_old
             do p = nl%start(j), nl%start(j + 1) - 1
                 k = nl%index(p)
@@ -79,112 +94,142 @@ contains
                 f = interp_weight(INTERP_M4, dim, d, h)
                 if (f <= 0.0_wp) cycle
                 np = np + 1
-                w(np) = f
+                wb(np) = f
                 pold(np) = j
                 pnew(np) = k - n_old
-                colsum(j) = colsum(j) + f
-                donors(k - n_old) = donors(k - n_old) + 1
             end do
         end do
-        lost = count(colsum <= 0.0_wp)
+
+        ! moments per old particle (d = (x_a - x_i)/h)
+        allocate(s0(n_old), s1(3, n_old), s2(3, 3, n_old))
+        call moments(n_old, pold, 1.0_wp, s0, s1, s2)
+        lost = count(s0 <= 0.0_wp)
         if (lost > 0) then
             write(msg, '(a, i0, a)') 'remesh_transfer: ', lost, &
                 ' old particle(s) have no new particle within the support'
-            if (present(errmsg)) errmsg = msg
-            if (present(stat)) then
-                stat = 1
-                m_new(1:n_new) = 0.0_wp; v_new(:, 1:n_new) = 0.0_wp
-                rho_new(1:n_new) = 0.0_wp; e_new(1:n_new) = 0.0_wp
-                return
-            end if
-            error stop 'remesh_transfer: an old particle has no new particle within the support'
+            call fail(1)
+            return
         end if
-        call normalise()
 
-        allocate(b(3, n_new), a(3, 3, n_new), mu(3, n_new), fix(n_new))
-        res = 0.0_wp
-        do it = 1, max_iter
-            call centroid_moments(res)
-            if (res < tol) exit
-            ! first-order correction per new particle: solve A mu = -b
-            do i = 1, n_new
-                fix(i) = donors(i) > dim
-                if (fix(i)) call solve_small(dim, a(:, :, i), -b(:, i), mu(:, i), fix(i))
+        ! local first-order corrected weights per old particle, fallback: normalised W
+        n_mfb = 0
+        p = 1
+        do j = 1, n_old
+            q = p
+            do while (q <= np)
+                if (pold(q) /= j) exit
+                q = q + 1
             end do
-            do p = 1, np
-                i = pnew(p)
-                if (.not. fix(i)) cycle
-                d = x_old(:, pold(p)) - x_new(:, i)
-                if (abs(dot_product(mu(1:dim, i), d(1:dim))) > 0.5_wp) fix(i) = .false.
-            end do
-            do p = 1, np
-                i = pnew(p)
-                if (.not. fix(i)) cycle
-                d = x_old(:, pold(p)) - x_new(:, i)
-                w(p) = w(p) * (1.0_wp + dot_product(mu(1:dim, i), d(1:dim)))
-            end do
-            colsum = 0.0_wp
-            do p = 1, np
-                colsum(pold(p)) = colsum(pold(p)) + w(p)
-            end do
-            call normalise()
+            ! pairs p .. q-1 belong to old particle j
+            call solve_small(dim, s2(:, :, j), -s1(:, j), beta, ok)
+            if (ok) then
+                do r = p, q - 1
+                    d = (x_new(:, pnew(r)) - x_old(:, j)) / h
+                    w(r) = wb(r) * (1.0_wp + dot_product(beta(1:dim), d(1:dim)))
+                end do
+                ok = all(w(p:q - 1) >= 0.0_wp) .and. sum(w(p:q - 1)) > 0.0_wp
+            end if
+            if (.not. ok) then
+                n_mfb = n_mfb + 1
+                w(p:q - 1) = wb(p:q - 1)
+            end if
+            w(p:q - 1) = w(p:q - 1) / sum(w(p:q - 1))
+            p = q
         end do
-        if (present(iterations)) iterations = it
-        call centroid_moments(res)
-        if (present(residual)) residual = res
 
-        allocate(mom(3, n_new), en(n_new), vol(n_new))
-        m_new(1:n_new) = 0.0_wp
-        mom = 0.0_wp; en = 0.0_wp; vol = 0.0_wp
+        allocate(en(n_new), vol(n_new))
+        en = 0.0_wp; vol = 0.0_wp
         do p = 1, np
             i = pnew(p); j = pold(p)
             m_new(i) = m_new(i) + w(p) * m_old(j)
-            mom(:, i) = mom(:, i) + w(p) * m_old(j) * v_old(:, j)
             en(i) = en(i) + w(p) * m_old(j) * e_old(j)
             vol(i) = vol(i) + w(p) * m_old(j) / rho_old(j)
         end do
-        do i = 1, n_new
-            if (m_new(i) > 0.0_wp .and. vol(i) > 0.0_wp) then
-                v_new(:, i) = mom(:, i) / m_new(i)
-                e_new(i) = en(i) / m_new(i)
-                rho_new(i) = m_new(i) / vol(i)
-            else
-                v_new(:, i) = 0.0_wp; e_new(i) = 0.0_wp; rho_new(i) = 0.0_wp
-            end if
+        empty = count(m_new(1:n_new) <= 0.0_wp .or. vol <= 0.0_wp)
+        if (empty > 0) then
+            write(msg, '(a, i0, a)') 'remesh_transfer: ', empty, &
+                ' new particle(s) receive no mass (no old particle within the support)'
+            call fail(2)
+            return
+        end if
+        e_new(1:n_new) = en / m_new(1:n_new)
+        rho_new(1:n_new) = m_new(1:n_new) / vol
+
+        ! velocity: first-order corrected interpolation at each new particle, u = W V
+        deallocate(s0, s1, s2)
+        allocate(s0(n_new), s1(3, n_new), s2(3, 3, n_new), gam(3, n_new), first_order(n_new))
+        do p = 1, np
+            wb(p) = wb(p) * m_old(pold(p)) / rho_old(pold(p))
         end do
+        call moments(n_new, pnew, -1.0_wp, s0, s1, s2)
+        n_vfb = 0
+        do i = 1, n_new
+            call solve_small(dim, s2(:, :, i), -s1(:, i), gam(:, i), first_order(i))
+            if (first_order(i)) first_order(i) = &
+                s0(i) + dot_product(gam(1:dim, i), s1(1:dim, i)) > 1.0e-12_wp * s0(i)
+            if (.not. first_order(i)) then
+                n_vfb = n_vfb + 1
+                gam(:, i) = 0.0_wp
+            end if
+            s0(i) = s0(i) + dot_product(gam(1:dim, i), s1(1:dim, i))
+        end do
+        do p = 1, np
+            i = pnew(p); j = pold(p)
+            d = (x_old(:, j) - x_new(:, i)) / h
+            f = wb(p) * (1.0_wp + dot_product(gam(1:dim, i), d(1:dim))) / s0(i)
+            v_new(1:dim, i) = v_new(1:dim, i) + f * v_old(1:dim, j)
+        end do
+
+        ! one uniform correction: total momentum as before
+        mom_old = 0.0_wp; mom_new = 0.0_wp
+        do j = 1, n_old
+            mom_old(1:dim) = mom_old(1:dim) + m_old(j) * v_old(1:dim, j)
+        end do
+        do i = 1, n_new
+            mom_new(1:dim) = mom_new(1:dim) + m_new(i) * v_new(1:dim, i)
+        end do
+        mass_new = sum(m_new(1:n_new))
+        dv = (mom_old - mom_new) / mass_new
+        do i = 1, n_new
+            v_new(1:dim, i) = v_new(1:dim, i) + dv(1:dim)
+        end do
+        if (present(n_mass_fallback)) n_mass_fallback = n_mfb
+        if (present(n_velocity_fallback)) n_velocity_fallback = n_vfb
 
     contains
 
-        subroutine normalise()
-            integer :: q
-            do q = 1, np
-                w(q) = w(q) / colsum(pold(q))
-            end do
-        end subroutine normalise
-
-        !> b_i = sum_j w m_j (x_j - x_i), A_i = sum_j w m_j d d^T; worst |b_i| / (M_i h).
-        subroutine centroid_moments(worst)
-            real(wp), intent(out) :: worst
-            integer :: q, ii, r
-            real(wp) :: dd(3), wm, mass(n_new)
-            b = 0.0_wp; a = 0.0_wp; mass = 0.0_wp
-            do q = 1, np
-                ii = pnew(q)
-                dd = x_old(:, pold(q)) - x_new(:, ii)
+        !> Zeroth, first and second moments of the current pair weights wb, gathered on the side
+        !> given by owner (pold or pnew); d = sgn (x_new - x_old) / h, i.e. measured from the
+        !> owner towards its partners.
+        subroutine moments(n, owner, sgn, m0, m1, m2)
+            integer, intent(in) :: n, owner(:)
+            real(wp), intent(in) :: sgn
+            real(wp), intent(out) :: m0(:), m1(:, :), m2(:, :, :)
+            integer :: t, o, c
+            real(wp) :: dd(3)
+            m0(1:n) = 0.0_wp; m1(:, 1:n) = 0.0_wp; m2(:, :, 1:n) = 0.0_wp
+            do t = 1, np
+                o = owner(t)
+                dd = sgn * (x_new(:, pnew(t)) - x_old(:, pold(t))) / h
                 dd(dim + 1:) = 0.0_wp
-                wm = w(q) * m_old(pold(q))
-                mass(ii) = mass(ii) + wm
-                b(:, ii) = b(:, ii) + wm * dd
-                do r = 1, 3
-                    a(:, r, ii) = a(:, r, ii) + wm * dd * dd(r)
+                m0(o) = m0(o) + wb(t)
+                m1(:, o) = m1(:, o) + wb(t) * dd
+                do c = 1, 3
+                    m2(:, c, o) = m2(:, c, o) + wb(t) * dd * dd(c)
                 end do
             end do
-            worst = 0.0_wp
-            do ii = 1, n_new
-                if (donors(ii) > dim .and. mass(ii) > 0.0_wp) &
-                    worst = max(worst, maxval(abs(b(:, ii))) / (mass(ii) * h))
-            end do
-        end subroutine centroid_moments
+        end subroutine moments
+
+        subroutine fail(code)
+            integer, intent(in) :: code
+            m_new(1:n_new) = 0.0_wp
+            if (present(errmsg)) errmsg = msg
+            if (present(stat)) then
+                stat = code
+                return
+            end if
+            error stop 'remesh_transfer: particles without partner within the kernel support'
+        end subroutine fail
     end subroutine remesh_transfer
 
     !> Solve the dim x dim system m x = r by Gaussian elimination with partial pivoting;
@@ -204,7 +249,7 @@ contains
         if (.not. ok) return
         do c = 1, dim
             piv = c - 1 + maxloc(abs(g(c:dim, c)), dim=1)
-            if (abs(g(piv, c)) <= 1.0e-12_wp * scale) then
+            if (abs(g(piv, c)) <= 1.0e-10_wp * scale) then
                 ok = .false.
                 return
             end if
