@@ -24,7 +24,8 @@
 !> common neighbours only), a cube by its body diagonal, so keys are unique and depend only on
 !> positions and ids, not on the storage order. Ids must lie in [0, 2^61). Positions of
 !> centres are summed in id order from the lowest-id corner, so they are identical (bitwise)
-!> whatever the input order.
+!> whatever the input order. Every diagonal pair is examined from its lower-id end, so also
+!> the irregular cases are decided independently of the order.
 !>
 !> Irregular neighbourhoods (a diagonal pair with more than two common neighbours, a cube
 !> candidate with a wrong corner count) produce no centre and are counted (n_irregular):
@@ -105,7 +106,7 @@ contains
             call distance_two(a)
             do k = 1, ncand
                 c = cand(k)
-                if (c < a) cycle
+                if (ids(c) < ids(a)) cycle
                 call common(a, c, cm, nc)
                 if (nc < 2) cycle
                 if (nc > 2 .or. adjacent(cm(1), cm(2))) then
@@ -138,7 +139,7 @@ contains
                 end do
                 do k = 1, ncand
                     g = cand(k)
-                    if (cnt(k) /= 3 .or. g < a) cycle
+                    if (cnt(k) /= 3 .or. ids(g) < ids(a)) cycle
                     if (adjacent(a, g) .or. any(part(1:npart(a), a) == g)) cycle
                     nb = 0
                     do q = 1, npart(a)
