@@ -1,0 +1,365 @@
+!> Coarse-to-fine particle positions (thesis sec. 3.2.1, with the count corrected as in the
+!> errata). Serial, no MPI, positions only: the fields are handed on by sph_remesh_interp.
+!>
+!> Rule. Two old particles are neighbours (an "edge") when closer than EDGE_FACTOR * dx
+!> (1.2 dx: a lattice's nearest neighbours at dx are in, its face diagonals at 1.41 dx out;
+!> with +-5 % jitter per axis edges stay below 1.11 dx and diagonals above 1.27 dx). The new
+!> set is
+!>  - every old position (key (4 id, id));
+!>  - the midpoint of every edge (key (4 min id + 1, max id));
+!>  - the centre of every "face": a chordless 4-cycle a-b-c-d, found as a non-adjacent pair
+!>    (a, c) with exactly two common neighbours b, d that are not adjacent themselves; key
+!>    (4 id_lo + 2, id of the corner opposite the lowest-id corner id_lo);
+!>  - in 3D the centre of every "cube": a pair (a, g), g not adjacent to a and not a face
+!>    partner of a, adjacent to exactly three face partners c1..c3 of a; its 8 corners are
+!>    a, g, the c's and the common neighbours of a with the c's; key (4 id_lo + 3, id of the
+!>    corner opposite id_lo).
+!> Each centre is the mean of its corners. On a lattice of N sites (periodic) this gives
+!> N + dim N + (dim (dim - 1) / 2) N + [dim = 3] N = 2^dim N: 4N in 2D, 8N in 3D, a lattice
+!> of spacing dx/2. Midpoints alone give only N + dim N (2N in 2D, not 4N: each site has
+!> 2 dim neighbours, each edge shared by two sites), leaving the cell centres empty (errata).
+!>
+!> Keys. The low two bits of key(1) give the kind (0 site, 1 edge, 2 face, 3 cube), the rest
+!> the lowest corner id; key(2) the opposite corner. A face is fixed by its diagonal (two
+!> common neighbours only), a cube by its body diagonal, so keys are unique and depend only on
+!> positions and ids, not on the storage order. Ids must lie in [0, 2^61). Positions of
+!> centres are summed in id order from the lowest-id corner, so they are identical (bitwise)
+!> whatever the input order. Every diagonal pair is examined from its lower-id end, so also
+!> the irregular cases are decided independently of the order.
+!>
+!> Irregular neighbourhoods (a diagonal pair with more than two common neighbours, a cube
+!> candidate with a wrong corner count) produce no centre and are counted (n_irregular):
+!> on strongly disordered sets the count falls short of 2^dim N by that much.
+!>
+!> Periodic: with box (lengths of the axes, domain [0, box)) neighbours are searched through
+!> periodic images and new positions wrapped into the box; the box must exceed 4 EDGE_FACTOR
+!> dx per axis so that no 4-cycle wraps around it. Without box the set is open and particles
+!> at its edges get fewer children.
+module sph_refine
+    use sph_kinds, only: wp, i8
+    use sph_cell_list, only: neighbour_list_t, build_neighbour_list
+    implicit none
+    private
+    public :: refine_positions, EDGE_FACTOR
+
+    real(wp), parameter :: EDGE_FACTOR = 1.2_wp
+    integer, parameter :: max_partners = 64
+
+contains
+
+    subroutine refine_positions(dim, n, x, ids, dx, n_new, x_new, key, stat, errmsg, box, &
+            n_irregular)
+        integer, intent(in) :: dim, n
+        real(wp), intent(in) :: x(:, :), dx
+        integer(i8), intent(in) :: ids(:)
+        integer, intent(out) :: n_new
+        real(wp), allocatable, intent(out) :: x_new(:, :)
+        integer(i8), allocatable, intent(out) :: key(:, :)
+        integer, intent(out), optional :: stat
+        character(len=*), intent(out), optional :: errmsg
+        real(wp), intent(in), optional :: box(3)
+        integer, intent(out), optional :: n_irregular
+        real(wp) :: rc, bx(3)
+        logical :: periodic
+        integer, allocatable :: astart(:), adj(:), npart(:), part(:, :)
+        integer :: a, b, c, g, p, q, k, nc, cm(8), irregular, capacity, ncand, nb, ncorner
+        integer :: cand(256), cnt(256), cs(3), corner(8)
+        logical :: bad
+
+        if (present(stat)) stat = 0
+        periodic = present(box)
+        bx = 0.0_wp
+        if (periodic) bx = box
+        rc = EDGE_FACTOR * dx
+        if (periodic) then
+            if (any(bx(1:dim) <= 4.0_wp * rc)) then
+                call fail('refine_positions: periodic box shorter than 4 edge lengths')
+                return
+            end if
+        end if
+        if (any(ids(1:n) < 0_i8) .or. any(ids(1:n) >= 2_i8**61)) then
+            call fail('refine_positions: ids must lie in [0, 2^61)')
+            return
+        end if
+        call adjacency()
+
+        ! face partners (diagonal pairs with exactly two non-adjacent common neighbours)
+        allocate(npart(n), part(max_partners, n))
+        npart = 0
+        irregular = 0
+        capacity = n * (1 + dim + dim * (dim - 1) / 2 + merge(1, 0, dim == 3))
+        capacity = capacity + capacity / 4 + 16
+        allocate(x_new(3, capacity), key(2, capacity))
+        x_new = 0.0_wp
+        n_new = 0
+        do a = 1, n
+            call emit(key_of(0, ids(a), ids(a)), x(:, a))
+        end do
+        do a = 1, n
+            do p = astart(a), astart(a + 1) - 1
+                b = adj(p)
+                if (ids(b) < ids(a)) cycle
+                call emit(key_of(1, ids(a), ids(b)), x(:, a) + 0.5_wp * disp(a, b))
+            end do
+        end do
+        do a = 1, n
+            call distance_two(a)
+            do k = 1, ncand
+                c = cand(k)
+                if (ids(c) < ids(a)) cycle
+                call common(a, c, cm, nc)
+                if (nc < 2) cycle
+                if (nc > 2 .or. adjacent(cm(1), cm(2))) then
+                    irregular = irregular + 1
+                    cycle
+                end if
+                if (npart(a) >= max_partners .or. npart(c) >= max_partners) then
+                    irregular = irregular + 1
+                    cycle
+                end if
+                npart(a) = npart(a) + 1; part(npart(a), a) = c
+                npart(c) = npart(c) + 1; part(npart(c), c) = a
+                ! each face has two diagonals: the one through its lowest id emits it
+                corner(1:4) = [a, c, cm(1), cm(2)]
+                if (min(ids(a), ids(c)) < min(ids(cm(1)), ids(cm(2)))) &
+                    call emit_centre(2, corner(1:4), a, c)
+            end do
+        end do
+        if (dim == 3) then
+            do a = 1, n
+                ! candidates g: neighbours of face partners of a, counted
+                ncand = 0
+                do q = 1, npart(a)
+                    c = part(q, a)
+                    do p = astart(c), astart(c + 1) - 1
+                        g = adj(p)
+                        if (g == a) cycle
+                        call add_count(g)
+                    end do
+                end do
+                do k = 1, ncand
+                    g = cand(k)
+                    if (cnt(k) /= 3 .or. ids(g) < ids(a)) cycle
+                    if (adjacent(a, g) .or. any(part(1:npart(a), a) == g)) cycle
+                    nb = 0
+                    do q = 1, npart(a)
+                        if (adjacent(part(q, a), g)) then
+                            nb = nb + 1
+                            cs(nb) = part(q, a)
+                        end if
+                    end do
+                    corner(1:2) = [a, g]
+                    corner(3:5) = cs
+                    ncorner = 5
+                    bad = .false.
+                    do q = 1, 3
+                        call common(a, cs(q), cm, nc)
+                        if (nc /= 2) bad = .true.
+                        do p = 1, min(nc, 8)
+                            if (any(corner(1:ncorner) == cm(p))) cycle
+                            if (ncorner == 8) then
+                                bad = .true.
+                            else
+                                ncorner = ncorner + 1
+                                corner(ncorner) = cm(p)
+                            end if
+                        end do
+                    end do
+                    if (bad .or. ncorner /= 8) then
+                        irregular = irregular + 1
+                        cycle
+                    end if
+                    ! each cube has four body diagonals: the one through its lowest id emits it
+                    if (min(ids(a), ids(g)) == minval(ids(corner))) &
+                        call emit_centre(3, corner, a, g)
+                end do
+            end do
+        end if
+        if (periodic) then
+            do k = 1, n_new
+                x_new(1:dim, k) = x_new(1:dim, k) &
+                    - bx(1:dim) * floor(x_new(1:dim, k) / bx(1:dim))
+            end do
+        end if
+        x_new = x_new(:, 1:n_new)
+        key = key(:, 1:n_new)
+        if (present(n_irregular)) n_irregular = irregular
+
+    contains
+
+        !> Neighbour pairs closer than rc among the originals (through images if periodic).
+        subroutine adjacency()
+            real(wp), allocatable :: xa(:, :)
+            integer, allocatable :: orig(:)
+            type(neighbour_list_t) :: nl
+            integer :: i, m, t, sh(3), nsh, ntot, j
+            real(wp) :: y(3)
+            nsh = 1
+            if (periodic) nsh = 3**dim
+            allocate(xa(3, n * nsh), orig(n * nsh))
+            xa(:, 1:n) = x(:, 1:n)
+            xa(dim + 1:, 1:n) = 0.0_wp
+            orig(1:n) = [(i, i = 1, n)]
+            ntot = n
+            do t = 0, nsh - 1
+                sh = 0
+                sh(1) = mod(t, 3) - 1
+                if (dim >= 2) sh(2) = mod(t / 3, 3) - 1
+                if (dim == 3) sh(3) = t / 9 - 1
+                if (all(sh == 0)) cycle
+                do i = 1, n
+                    y = xa(:, i) + real(sh, wp) * bx
+                    if (any(y(1:dim) < -rc .or. y(1:dim) >= bx(1:dim) + rc)) cycle
+                    ntot = ntot + 1
+                    xa(:, ntot) = y
+                    orig(ntot) = i
+                end do
+            end do
+            call build_neighbour_list(xa, ntot, n, dim, rc, nl)
+            allocate(astart(n + 1), adj(nl%n_pairs))
+            m = 0
+            do i = 1, n
+                astart(i) = m + 1
+                do t = nl%start(i), nl%start(i + 1) - 1
+                    j = orig(nl%index(t))
+                    if (j == i .or. any(adj(astart(i):m) == j)) cycle
+                    m = m + 1
+                    adj(m) = j
+                end do
+            end do
+            astart(n + 1) = m + 1
+        end subroutine adjacency
+
+        logical function adjacent(i, j)
+            integer, intent(in) :: i, j
+            adjacent = any(adj(astart(i):astart(i + 1) - 1) == j)
+        end function adjacent
+
+        !> Common neighbours of i and j (at most 8 kept, count returned in full).
+        subroutine common(i, j, out, nout)
+            integer, intent(in) :: i, j
+            integer, intent(out) :: out(8), nout
+            integer :: t
+            nout = 0
+            out = 0
+            do t = astart(i), astart(i + 1) - 1
+                if (adjacent(j, adj(t))) then
+                    nout = nout + 1
+                    if (nout <= 8) out(nout) = adj(t)
+                end if
+            end do
+        end subroutine common
+
+        !> cand(1:ncand): particles at graph distance exactly 2 from i.
+        subroutine distance_two(i)
+            integer, intent(in) :: i
+            integer :: t, u, j
+            ncand = 0
+            do t = astart(i), astart(i + 1) - 1
+                do u = astart(adj(t)), astart(adj(t) + 1) - 1
+                    j = adj(u)
+                    if (j == i .or. adjacent(i, j)) cycle
+                    if (any(cand(1:ncand) == j)) cycle
+                    if (ncand < size(cand)) then
+                        ncand = ncand + 1
+                        cand(ncand) = j
+                    end if
+                end do
+            end do
+        end subroutine distance_two
+
+        subroutine add_count(j)
+            integer, intent(in) :: j
+            integer :: t
+            do t = 1, ncand
+                if (cand(t) == j) then
+                    cnt(t) = cnt(t) + 1
+                    return
+                end if
+            end do
+            if (ncand < size(cand)) then
+                ncand = ncand + 1
+                cand(ncand) = j
+                cnt(ncand) = 1
+            end if
+        end subroutine add_count
+
+        !> Minimum-image displacement x_j - x_i.
+        function disp(i, j) result(d)
+            integer, intent(in) :: i, j
+            real(wp) :: d(3)
+            d = x(:, j) - x(:, i)
+            d(dim + 1:) = 0.0_wp
+            if (periodic) d(1:dim) = d(1:dim) - bx(1:dim) * anint(d(1:dim) / bx(1:dim))
+        end function disp
+
+        !> Centre of the corners cn, summed in id order from the lowest-id corner; key from the
+        !> diagonal (d1, d2) through the lowest id.
+        subroutine emit_centre(kind, cn, d1, d2)
+            integer, intent(in) :: kind, cn(:), d1, d2
+            integer :: order(size(cn)), t, lo
+            real(wp) :: sumd(3)
+            order = sort_by_id(cn)
+            lo = order(1)
+            sumd = 0.0_wp
+            do t = 2, size(cn)
+                sumd = sumd + disp(lo, order(t))
+            end do
+            call emit(key_of(kind, ids(d1), ids(d2)), x(:, lo) + sumd / real(size(cn), wp))
+        end subroutine emit_centre
+
+        function sort_by_id(cn) result(o)
+            integer, intent(in) :: cn(:)
+            integer :: o(size(cn)), t, u, tmp
+            o = cn
+            do t = 2, size(o)
+                tmp = o(t)
+                u = t - 1
+                do while (u >= 1)
+                    if (ids(o(u)) <= ids(tmp)) exit
+                    o(u + 1) = o(u)
+                    u = u - 1
+                end do
+                o(u + 1) = tmp
+            end do
+        end function sort_by_id
+
+        pure function key_of(kind, lo, hi) result(kk)
+            integer, intent(in) :: kind
+            integer(i8), intent(in) :: lo, hi
+            integer(i8) :: kk(2)
+            kk(1) = 4_i8 * min(lo, hi) + int(kind, i8)
+            kk(2) = max(lo, hi)
+        end function key_of
+
+        subroutine emit(kk, y)
+            integer(i8), intent(in) :: kk(2)
+            real(wp), intent(in) :: y(3)
+            real(wp), allocatable :: xt(:, :)
+            integer(i8), allocatable :: kt(:, :)
+            if (n_new == size(key, 2)) then
+                allocate(xt(3, 2 * n_new), kt(2, 2 * n_new))
+                xt = 0.0_wp; kt = 0_i8
+                xt(:, 1:n_new) = x_new; kt(:, 1:n_new) = key
+                call move_alloc(xt, x_new)
+                call move_alloc(kt, key)
+            end if
+            n_new = n_new + 1
+            key(:, n_new) = kk
+            x_new(:, n_new) = y
+            x_new(dim + 1:, n_new) = 0.0_wp
+        end subroutine emit
+
+        subroutine fail(msg)
+            character(len=*), intent(in) :: msg
+            n_new = 0
+            allocate(x_new(3, 0), key(2, 0))
+            if (present(errmsg)) errmsg = msg
+            if (present(stat)) then
+                stat = 1
+                return
+            end if
+            error stop 'refine_positions: invalid input'
+        end subroutine fail
+    end subroutine refine_positions
+end module sph_refine
