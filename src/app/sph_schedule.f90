@@ -12,7 +12,8 @@ module sph_schedule
     use sph_rates, only: local_max_speed
     use sph_reference, only: steady_after
     use sph_stepper, only: simulation_t, simulation_write_snapshot, &
-        simulation_write_checkpoint, simulation_analytic_error, fluid_density_range
+        simulation_write_checkpoint, simulation_analytic_error, fluid_density_range, &
+        simulation_write_forces, simulation_log_forces
     implicit none
     private
     public :: schedule_t, schedule_init, schedule_dt_cap, schedule_after_step
@@ -40,6 +41,7 @@ module sph_schedule
         real(wp) :: wall_last = 0.0_wp           !< last checkpoint (s)
         real(wp) :: wall_checkpoint = 0.0_wp
         logical :: finished = .false.
+        logical :: forces_started = .false.      !< the forces file has this run's header
     end type schedule_t
 
 contains
@@ -66,6 +68,8 @@ contains
         sched%log_every = cfg%run%log_interval
         sched%steps_since_log = 0
         sched%finished = .false.
+        ! a restart appends to the forces file of the run it continues
+        sched%forces_started = step > 0
     end subroutine schedule_init
 
     !> Set next_output to the first snapshot time after time (interval multiples and listed
@@ -201,6 +205,9 @@ contains
         call log_info(trim(line))
         sched%wall_last = wall_now
         sched%steps_since_log = 0
+        ! the forces on walls and bodies: a row per solid at every log line
+        call simulation_write_forces(sim, env, fresh=.not. sched%forces_started)
+        sched%forces_started = .true.
     end subroutine log_progress
 
     !> Steps, simulated and wall time, and the error against the analytic reference (and
@@ -215,6 +222,7 @@ contains
         write(line, '(a,i0,a,es12.5,a,f10.2,a)') 'finished: ', sim%step - sched%first_step, &
             ' steps to t = ', sim%time, ' s in ', wall_now - sched%wall_start, ' s wall'
         call log_info(trim(line))
+        call simulation_log_forces(sim, env)
         if (trim(sim%ref%name) == 'none') return
         error = simulation_analytic_error(sim, env)
         write(line, '(a,es12.5,a,f9.5,a)') 'error against the analytic ' // &

@@ -37,6 +37,7 @@ module sph_stepper
     use sph_version, only: code_version
     implicit none
     private
+    public :: simulation_solid_forces, simulation_write_forces, simulation_log_forces
     public :: simulation_t, simulation_setup, simulation_step, simulation_rebalance
     public :: simulation_analytic_error, simulation_prepare_neighbours, simulation_free
     public :: simulation_restart, simulation_write_checkpoint, simulation_write_snapshot
@@ -57,6 +58,9 @@ module sph_stepper
         real(wp) :: list_skin = 0.0_wp     !< neighbour-list skin: lets a list serve both stages
         type(timestep_limits_t) :: last_limits
         real(wp) :: first_dt = 0.0_wp      !< the run's first time step (health check)
+        !> force of the fluid on each solid from the last rates: (xyz, pressure|viscous, solid),
+        !> this rank's fluid particles only (simulation_solid_forces sums over ranks)
+        real(wp), allocatable :: wall_forces(:, :, :)
         character(len=:), allocatable :: input_text
         character(len=:), allocatable :: snapshot_index   !< one line per snapshot, for XDMF
         character(len=512), allocatable :: checkpoints(:) !< written by this run, oldest first
@@ -89,6 +93,8 @@ contains
             end if
         end do
         sim%solids = solids_from_config(cfg)
+        allocate(sim%wall_forces(3, 2, size(sim%solids%list)))
+        sim%wall_forces = 0.0_wp
         call reference_from_config(cfg, sim%ref, stat, errmsg)
         if (stat /= 0) call fatal_collective('set-up', errmsg)
         periodic = .false.
@@ -248,8 +254,79 @@ contains
             call halo_refresh(sim%halo, env, sim%p, HALO_STRAIN)
             call build_mirrors(sim%phys, sim%solids, sim%p)
         end if
-        call compute_rates(sim%phys, sim%p, sim%nl, sim%solids)
+        sim%wall_forces = 0.0_wp
+        call compute_rates(sim%phys, sim%p, sim%nl, sim%solids, sim%wall_forces)
     end subroutine evaluate_rates
+
+    !> Force of the fluid on every solid (xyz, pressure|viscous, solid) from the rates of the
+    !> step's second stage, the ones that advanced it (collective).
+    function simulation_solid_forces(sim, env) result(forces)
+        type(simulation_t), intent(in) :: sim
+        type(mpi_env_t), intent(in) :: env
+        real(wp), allocatable :: forces(:, :, :)
+        forces = reshape(global_sum(env, reshape(sim%wall_forces, [size(sim%wall_forces)])), &
+            shape(sim%wall_forces))
+    end function simulation_solid_forces
+
+    !> The forces on the solids as rows of <output_dir>/<case>_forces.csv: time, step, body,
+    !> Fx, Fy, Fz, then the pressure and viscous parts (N, per unit depth in 2D). Collective;
+    !> rank 0 writes. `fresh` starts the file (a new run); otherwise rows are appended.
+    subroutine simulation_write_forces(sim, env, fresh)
+        type(simulation_t), intent(in) :: sim
+        type(mpi_env_t), intent(in) :: env
+        logical, intent(in) :: fresh
+        real(wp), allocatable :: forces(:, :, :)
+        character(len=:), allocatable :: path
+        character(len=512) :: line
+        integer :: unit, k, stat
+        logical :: exists
+        if (size(sim%solids%list) == 0) return
+        forces = simulation_solid_forces(sim, env)
+        path = trim(sim%cfg%output%output_dir) // '/' // trim(sim%cfg%run%case_name) // &
+            '_forces.csv'
+        stat = 0
+        if (env%rank == 0) then
+            inquire(file=path, exist=exists)
+            if (fresh .or. .not. exists) then
+                open(newunit=unit, file=path, status='replace', action='write', iostat=stat)
+                if (stat == 0) write(unit, '(a)') 'time,step,body,Fx,Fy,Fz,Fx_pressure,' // &
+                    'Fy_pressure,Fz_pressure,Fx_viscous,Fy_viscous,Fz_viscous'
+            else
+                open(newunit=unit, file=path, status='old', position='append', &
+                    action='write', iostat=stat)
+            end if
+            if (stat == 0) then
+                do k = 1, size(forces, 3)
+                    write(line, '(es24.16,",",i0,",",a,9(",",es24.16))') sim%time, sim%step, &
+                        trim(sim%solids%list(k)%name), forces(:, 1, k) + forces(:, 2, k), &
+                        forces(:, 1, k), forces(:, 2, k)
+                    write(unit, '(a)') trim(line)
+                end do
+                close(unit)
+            end if
+        end if
+        if (global_max(env, int(stat, i8)) /= 0) &
+            call fatal_collective('output', "cannot write the forces to '" // path // "'")
+    end subroutine simulation_write_forces
+
+    !> The forces on the solids in the log, one line per solid (collective).
+    subroutine simulation_log_forces(sim, env)
+        type(simulation_t), intent(in) :: sim
+        type(mpi_env_t), intent(in) :: env
+        real(wp), allocatable :: forces(:, :, :)
+        character(len=256) :: line
+        character(len=:), allocatable :: unit_text
+        integer :: k
+        if (size(sim%solids%list) == 0) return
+        forces = simulation_solid_forces(sim, env)
+        unit_text = merge(' N/m', ' N  ', sim%cfg%domain%dimension == 2)
+        do k = 1, size(forces, 3)
+            write(line, '(a,3es13.5,a,3es13.5,a)') 'force on ' // &
+                trim(sim%solids%list(k)%name) // ':', forces(:, 1, k) + forces(:, 2, k), &
+                trim(unit_text) // ' (viscous part', forces(:, 2, k), ')'
+            call log_info(trim(line))
+        end do
+    end subroutine simulation_log_forces
 
     !> Time-step limit for the current rates (collective).
     function stable_timestep(sim, env) result(lim)

@@ -159,12 +159,17 @@ contains
     end subroutine compute_strain_rate
 
     !> d rho/dt, d v/dt and d e/dt of every owned particle.
-    subroutine compute_rates(phys, p, nl, solids)
+    !> With wall_forces (3, 2, number of solids), the force the fluid exerts on each solid is
+    !> added: (:, 1, s) pressure (and repulsion), (:, 2, s) viscous; it is minus the pair
+    !> terms its wall (or mirror) particles give the owned fluid particles, so the fluid's
+    !> total m dv/dt plus the forces on all solids equals the body force on the fluid.
+    subroutine compute_rates(phys, p, nl, solids, wall_forces)
         type(physics_t), intent(in) :: phys
         type(particles_t), intent(inout) :: p
         type(neighbour_list_t), intent(in) :: nl
         type(solids_t), intent(in), optional :: solids   !< for Morris walls of curved bodies
-        integer :: i, k, j, a
+        real(wp), intent(inout), optional :: wall_forces(:, :, :)
+        integer :: i, k, j, a, s
         real(wp) :: d(3), r2, r, dwdr, grad(3), vij(3), vvisc(3), pterm, coeff, beta
         real(wp) :: drho, dv(3), de, rho_i, p_i, mu_i, q, sterm(3), eps_i(3, 3), eps_j(3, 3)
         real(wp) :: support2
@@ -201,6 +206,10 @@ contains
                         q = phys%repulsive_r0 / r
                         dv = dv + phys%repulsive_d * (q**phys%repulsive_n1 - q**phys%repulsive_n2) &
                             * d / r2
+                        s = force_slot(j)
+                        if (s > 0) wall_forces(:, 1, s) = wall_forces(:, 1, s) - p%m(i) * &
+                            phys%repulsive_d * (q**phys%repulsive_n1 - q**phys%repulsive_n2) &
+                            * d / r2
                     end if
                     cycle
                 end if
@@ -211,6 +220,9 @@ contains
                 pterm = p_i + p%p(j) / p%rho(j)**2
                 dv = dv - p%m(j) * pterm * grad
                 de = de + 0.5_wp * p%m(j) * pterm * dot_product(vij, grad)
+                s = force_slot(j)
+                if (s > 0) wall_forces(:, 1, s) = wall_forces(:, 1, s) + p%m(i) * p%m(j) * &
+                    pterm * grad
                 select case (phys%viscosity)
                 case (VISCOSITY_MORRIS)
                     vvisc = vij
@@ -223,6 +235,8 @@ contains
                         / (rho_i * p%rho(j)) * r * dwdr / (r2 + phys%eta2)
                     dv = dv + coeff * vvisc
                     de = de - 0.5_wp * coeff * dot_product(vvisc, vvisc)
+                    if (s > 0) wall_forces(:, 2, s) = wall_forces(:, 2, s) - p%m(i) * coeff * &
+                        vvisc
                 case (VISCOSITY_STRAIN_RATE)
                     eps_j = tensor(p%strain(:, j))
                     do a = 1, 3
@@ -230,6 +244,8 @@ contains
                             p%rho(j) * phys%nu * eps_j(a, :) / p%rho(j)**2, grad)
                     end do
                     dv = dv + p%m(j) * sterm
+                    if (s > 0) wall_forces(:, 2, s) = wall_forces(:, 2, s) - p%m(i) * p%m(j) * &
+                        sterm
                 end select
             end do
             if (phys%viscosity == VISCOSITY_STRAIN_RATE) then
@@ -241,6 +257,15 @@ contains
         end do
 
     contains
+
+        !> The solid whose force a pair with j counts towards, 0 when forces are not asked
+        !> for or j belongs to no solid (fluid).
+        integer function force_slot(jj)
+            integer, intent(in) :: jj
+            force_slot = 0
+            if (.not. present(wall_forces)) return
+            force_slot = p%solid(jj)
+        end function force_slot
 
         !> Morris wall particles follow the continuity equation with their own velocity.
         subroutine wall_density_rate(iw)
