@@ -162,6 +162,8 @@ contains
             xa(dim + 1:, 1:n) = 0.0_wp
             orig(1:n) = [(a, a = 1, n)]
             ntot = n
+            ! images only when periodic (with nsh = 1, s = 0 would be the shift (-1, -1, -1))
+            if (.not. periodic) nsh = 0
             do s = 0, nsh - 1
                 sh = 0
                 sh(1) = mod(s, 3) - 1
