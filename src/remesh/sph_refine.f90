@@ -201,6 +201,8 @@ contains
             xa(dim + 1:, 1:n) = 0.0_wp
             orig(1:n) = [(i, i = 1, n)]
             ntot = n
+            ! images only when periodic (with nsh = 1, t = 0 would be the shift (-1, -1, -1))
+            if (.not. periodic) nsh = 0
             do t = 0, nsh - 1
                 sh = 0
                 sh(1) = mod(t, 3) - 1
