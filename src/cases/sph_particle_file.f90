@@ -32,14 +32,14 @@ module sph_particle_file
     ! the per-particle problems, counted over all ranks and shown with a first example
     integer, parameter :: n_problems = 8
     character(len=*), parameter :: problem_text(n_problems) = [character(len=64) :: &
-        'of a kind other than 0 (fluid) or 1 (wall)', &
-        'not finite (position, velocity, density or mass)', &
-        'fluid outside the box', &
-        'fluid inside a solid', &
+        'particles of a kind other than 0 (fluid) or 1 (wall)', &
+        'particles not finite (position, velocity, density or mass)', &
+        'fluid particles outside the box', &
+        'fluid particles inside a solid', &
         'wall particles outside every solid', &
-        'with mass <= 0 or density <= 0', &
-        'with id <= 0', &
-        'with z /= 0 in a 2D run (&domain dimension = 2)']
+        'particles with mass <= 0 or density <= 0', &
+        'particles with id <= 0', &
+        'particles with z /= 0 in a 2D run (&domain dimension = 2)']
 
     !> The optional datasets: name and width (0: one value per row).
     character(len=16), parameter :: optional_names(10) = [character(len=16) :: 'velocity', &
@@ -288,8 +288,7 @@ contains
             reporter = int(-global_max(env, int(merge(-env%rank, -huge(0), counts(k) > 0), i8)))
             text = trim(example(k))
             call broadcast_text(env, text, reporter)
-            message = message // '; ' // text_of(total) // ' particles ' // &
-                trim(problem_text(k)) // ' (first: ' // text // ')'
+            message = message // '; ' // text_of(total) // ' ' // trim(problem_text(k)) // ' (first: ' // text // ')'
         end do
 
     contains
