@@ -3,8 +3,9 @@
 #               from it on NP ranks (MAX_STEPS: stop early) and compare SNAPSHOT with the one
 #               in REFERENCE_DIR by COMPARER (scripts/sph_compare.py: bitwise,
 #               every dataset but `rank`).
-#   MODE=error: break the file with BREAKER (make_bad_particles.py BAD) and expect a non-zero
-#               exit with exactly one error message matching EXPECT.
+#               VARIANT: first rewrite the file with BREAKER (make_bad_particles.py VARIANT).
+#   MODE=error: break the file with BREAKER (make_bad_particles.py VARIANT) and expect a
+#               non-zero exit with exactly one error message matching EXPECT.
 file(REMOVE_RECURSE ${WORKDIR})
 file(MAKE_DIRECTORY ${WORKDIR})
 separate_arguments(EXTRA)
@@ -13,10 +14,11 @@ execute_process(COMMAND ${PYTHON} ${MAKER} ${INPUT} -o ${particles} RESULT_VARIA
 if(NOT rc EQUAL 0)
     message(FATAL_ERROR "${MAKER} failed (${rc})")
 endif()
-if(MODE STREQUAL "error")
+if(DEFINED VARIANT)
     set(good ${particles})
-    set(particles ${WORKDIR}/bad.h5)
-    execute_process(COMMAND ${PYTHON} ${BREAKER} ${good} ${BAD} ${particles} RESULT_VARIABLE rc)
+    set(particles ${WORKDIR}/${VARIANT}.h5)
+    execute_process(COMMAND ${PYTHON} ${BREAKER} ${good} ${VARIANT} ${particles}
+        RESULT_VARIABLE rc)
     if(NOT rc EQUAL 0)
         message(FATAL_ERROR "${BREAKER} failed (${rc})")
     endif()

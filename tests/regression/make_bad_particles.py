@@ -1,10 +1,11 @@
 #!/usr/bin/env python3
-"""Write a broken initial-particle file for the poiseuille_short case (regression tests).
+"""Write a variant of an initial-particle file for the poiseuille_short case (regression tests).
 
     make_bad_particles.py GOOD.h5 KIND OUT.h5
 
-KIND: missing_position, duplicate_id, outside_box, wrong_dimension. GOOD.h5 is a file made
-by scripts/make_initial_particles.py; OUT.h5 is a copy with one defect.
+KIND: missing_position, duplicate_id, outside_box, wrong_dimension (one defect each), or
+shuffled (the same particles, rows in a random order). GOOD.h5 is a file made by
+scripts/make_initial_particles.py.
 """
 import sys
 
@@ -22,6 +23,9 @@ def main(good, kind, out):
         data["id"][5] = data["id"][3]
     elif kind == "outside_box":
         data["position"][7, 0] = -1.0e-3          # a fluid particle left of the box
+    elif kind == "shuffled":
+        order = np.random.default_rng(12345).permutation(len(data["id"]))
+        data = {name: values[order] for name, values in data.items()}
     elif kind == "wrong_dimension":
         dimension = 3
     else:
