@@ -288,7 +288,8 @@ contains
             reporter = int(-global_max(env, int(merge(-env%rank, -huge(0), counts(k) > 0), i8)))
             text = trim(example(k))
             call broadcast_text(env, text, reporter)
-            message = message // '; ' // text_of(total) // ' ' // trim(problem_text(k)) // ' (first: ' // text // ')'
+            message = message // '; ' // text_of(total) // ' ' // trim(problem_text(k)) // &
+                ' (first: ' // text // ')'
         end do
 
     contains
