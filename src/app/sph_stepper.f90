@@ -25,6 +25,8 @@ module sph_stepper
     use sph_timestep, only: timestep_limits_t, timestep_limits
     use sph_integrator, only: save_step_start, advance
     use sph_initial, only: create_lattice_particles
+    use sph_particle_file, only: read_initial_particles
+    use sph_global_ids, only: id_order
     use sph_reference, only: reference_t, reference_from_config, relative_l2_error, &
         relative_l2_from_sums
     use sph_snapshot, only: write_snapshot, snapshot_filename, snapshot_begin, snapshot_end
@@ -116,11 +118,27 @@ contains
         type(simulation_t), intent(out) :: sim
         type(mpi_env_t), intent(in) :: env
         type(config_t), intent(in) :: cfg
+        integer :: stat
+        integer, allocatable :: order(:)
+        character(len=:), allocatable :: errmsg
         call setup_common(sim, env, cfg)
-        call create_lattice_particles(cfg, sim%phys, sim%solids, sim%domain, sim%p)
+        if (len_trim(cfg%domain%initial_particles) > 0) then
+            ! rows shared evenly over the ranks, then partitioned as on a restart
+            call read_initial_particles(env, cfg, sim%phys, sim%solids, &
+                trim(cfg%domain%initial_particles), sim%p, stat, errmsg)
+            if (stat /= 0) call fatal_collective('set-up', errmsg)
+            call log_info('particles: read from ' // trim(cfg%domain%initial_particles))
+        else
+            call create_lattice_particles(cfg, sim%phys, sim%solids, sim%domain, sim%p)
+        end if
         ! balance by particle count (walls included: they cost work too)
         call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
         call migrate_particles(sim%domain, env, sim%p)
+        ! each rank's particles in id order before the cell sort: the start then depends only
+        ! on the set of particles, not on how they came (lattice, file, any reading layout)
+        allocate(order(sim%p%n_owned))
+        call id_order(sim%p%id, sim%p%n_owned, order)
+        call particles_gather(sim%p, order)
         call halo_setup(sim%halo, sim%domain, sim%phys%kernel%support + sim%skin)
         call simulation_prepare_neighbours(sim, env)
         call log_setup(sim, env)

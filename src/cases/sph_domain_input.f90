@@ -11,7 +11,7 @@ module sph_domain_input
     public :: channel_t, find_analytic_channel
     public :: n_faces, face_names
 
-    integer, parameter :: n_faces = 6, name_len = 32
+    integer, parameter :: n_faces = 6, name_len = 32, path_len = 512
     !> Faces in input order: boundary(f), wall_velocity(:, f).
     character(len=4), parameter :: face_names(n_faces) = &
         ['xlo ', 'xhi ', 'ylo ', 'yhi ', 'zlo ', 'zhi ']
@@ -22,6 +22,7 @@ module sph_domain_input
         character(len=name_len) :: boundary(n_faces)
         real(wp) :: wall_velocity(3, n_faces)
         real(wp) :: dx
+        character(len=path_len) :: initial_particles   !< '' = the lattice
     contains
         procedure :: is_wall, is_periodic
     end type domain_input_t
@@ -66,6 +67,8 @@ contains
             doc='velocity (3 components) of each face''s wall particles')
         call grp%get_real('dx', dom%dx, 0.05_wp, min_exclusive=0.0_wp, unit='m', &
             doc='particle spacing of the coarsest level')
+        call grp%get_string('initial_particles', dom%initial_particles, '', &
+            doc='HDF5 file of initial particles (doc/output.md); empty = the lattice')
 
         do axis = 1, min(max(dom%dimension, 2), 3)
             axis_text = achar(iachar('0') + axis)

@@ -16,7 +16,7 @@ module sph_global_ids
     use sph_mpi_env, only: mpi_env_t, mpi_i8, global_max, global_sum, exclusive_scan_i8
     implicit none
     private
-    public :: global_max_id, assign_global_ids
+    public :: global_max_id, assign_global_ids, find_duplicate_ids, id_order
 
     !> samples per rank on average: more samples, better balanced buckets
     integer, parameter :: oversampling = 32
@@ -145,6 +145,77 @@ contains
             ids(perm(i)) = back(i)
         end do
     end subroutine assign_global_ids
+
+    !> How many distinct ids occur more than once in ids(1:n) over all ranks, and the
+    !> smallest of them (0 when none). Each id goes to rank modulo(id, nranks), which sorts
+    !> what it receives. Collective; n may be 0 on any rank.
+    subroutine find_duplicate_ids(env, ids, n, n_duplicates, smallest)
+        type(mpi_env_t), intent(in) :: env
+        integer(i8), intent(in) :: ids(:)
+        integer, intent(in) :: n
+        integer(i8), intent(out) :: n_duplicates, smallest
+        integer, allocatable :: send_counts(:), send_displs(:), recv_counts(:), recv_displs(:)
+        integer, allocatable :: fill(:), perm(:)
+        integer(i8), allocatable :: outgoing(:), received(:), incoming(:, :)
+        integer :: i, b, m, n_in, ierr, nranks
+        integer(i8) :: local_count, local_smallest
+        nranks = env%nranks
+        allocate(send_counts(nranks), send_displs(nranks), recv_counts(nranks), &
+            recv_displs(nranks), fill(nranks), outgoing(max(n, 1)))
+        send_counts = 0
+        do i = 1, n
+            b = int(modulo(ids(i), int(nranks, i8))) + 1
+            send_counts(b) = send_counts(b) + 1
+        end do
+        call MPI_Alltoall(send_counts, 1, MPI_INTEGER, recv_counts, 1, MPI_INTEGER, &
+            env%comm, ierr)
+        call check_mpi(ierr, 'find_duplicate_ids counts')
+        send_displs(1) = 0
+        recv_displs(1) = 0
+        do b = 2, nranks
+            send_displs(b) = send_displs(b - 1) + send_counts(b - 1)
+            recv_displs(b) = recv_displs(b - 1) + recv_counts(b - 1)
+        end do
+        fill = send_displs
+        do i = 1, n
+            b = int(modulo(ids(i), int(nranks, i8))) + 1
+            fill(b) = fill(b) + 1
+            outgoing(fill(b)) = ids(i)
+        end do
+        n_in = recv_displs(nranks) + recv_counts(nranks)
+        allocate(received(max(n_in, 1)), incoming(2, max(n_in, 1)), perm(max(n_in, 1)))
+        call MPI_Alltoallv(outgoing, send_counts, send_displs, mpi_i8, received, &
+            recv_counts, recv_displs, mpi_i8, env%comm, ierr)
+        call check_mpi(ierr, 'find_duplicate_ids ids')
+        incoming = 0
+        incoming(1, 1:n_in) = received(1:n_in)
+        call sort_keys(incoming, n_in, perm)
+        local_count = 0
+        local_smallest = huge(1_i8)
+        do m = 2, n_in
+            if (incoming(1, perm(m)) /= incoming(1, perm(m - 1))) cycle
+            if (m > 2) then
+                if (incoming(1, perm(m - 2)) == incoming(1, perm(m))) cycle   ! counted
+            end if
+            local_count = local_count + 1
+            local_smallest = min(local_smallest, incoming(1, perm(m)))
+        end do
+        n_duplicates = global_sum(env, local_count)
+        smallest = -global_max(env, -local_smallest)
+        if (n_duplicates == 0) smallest = 0
+    end subroutine find_duplicate_ids
+
+    !> order(1:n) such that ids(order(1:n)) increases (stable; no communication).
+    subroutine id_order(ids, n, order)
+        integer(i8), intent(in) :: ids(:)
+        integer, intent(in) :: n
+        integer, intent(out) :: order(:)
+        integer(i8), allocatable :: keys(:, :)
+        allocate(keys(2, max(n, 1)))
+        keys = 0
+        keys(1, 1:n) = ids(1:n)
+        call sort_keys(keys, n, order)
+    end subroutine id_order
 
     !> Lexicographic order of key pairs.
     pure logical function key_less(a, b)

@@ -1,0 +1,320 @@
+!> Initial particles from a user's HDF5 file (&domain initial_particles): the datasets of the
+!> snapshot schema under /particles, of which only `position` is required (doc/output.md,
+!> "Starting from your own particles"). The rows are shared out evenly over the ranks (as a
+!> checkpoint read on another rank count); the caller partitions and migrates.
+!>
+!> What a file lacks is made as the lattice set-up makes it: velocity 0 (wall particles:
+!> their solid's velocity), kind fluid, mass rho0 dx^dim, density rho0, id 1..N in file
+!> order, energy 0, level 0; wall particles without solid/wall_normal/wall_distance get them
+!> from the solid they lie in (sph_walls wall_site). Pressure always follows from the EOS and
+!> the smoothing length from the kernel. Unlike snapshots, a file needs no root attributes;
+!> one written by sphremesh (it has `format`) must carry write_complete, and an attribute
+!> `dimension`, if present, must match &domain. Every problem found is reported in one
+!> message naming the file; the status is the same on every rank. Collective on env%comm.
+module sph_particle_file
+    use sph_kinds, only: wp, i4, i8
+    use sph_config, only: config_t
+    use sph_mpi_env, only: mpi_env_t, global_max, global_sum, broadcast_text
+    use sph_particles, only: particles_t, particles_reserve, particles_clear, KIND_FLUID, &
+        KIND_WALL
+    use sph_physics, only: physics_t
+    use sph_solids, only: solids_t, deepest_solid, solid_velocity
+    use sph_walls, only: wall_site
+    use sph_eos, only: eos_pressure
+    use sph_global_ids, only: find_duplicate_ids
+    use sph_hdf5, only: h5_file_t, h5_open_read, h5_close, h5_read_rows, h5_dataset_rows, &
+        h5_read_attribute, h5_attribute_exists
+    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
+    implicit none
+    private
+    public :: read_initial_particles
+
+    ! the per-particle problems, counted over all ranks and shown with a first example
+    integer, parameter :: n_problems = 8
+    character(len=*), parameter :: problem_text(n_problems) = [character(len=64) :: &
+        'particles of a kind other than 0 (fluid) or 1 (wall)', &
+        'particles not finite (position, velocity, density or mass)', &
+        'fluid particles outside the box', &
+        'fluid particles inside a solid', &
+        'wall particles outside every solid', &
+        'particles with mass <= 0 or density <= 0', &
+        'particles with id <= 0', &
+        'particles with z /= 0 in a 2D run (&domain dimension = 2)']
+
+    !> The optional datasets: name and width (0: one value per row).
+    character(len=16), parameter :: optional_names(10) = [character(len=16) :: 'velocity', &
+        'density', 'mass', 'energy', 'id', 'kind', 'level', 'solid', 'wall_normal', &
+        'wall_distance']
+    integer, parameter :: optional_widths(10) = [3, 0, 0, 0, 0, 0, 0, 0, 3, 0]
+
+contains
+
+    !> Read `path` into p (owned particles, rows shared evenly over the ranks) or return
+    !> stat /= 0 (the same on every rank) with a message naming the file and every problem.
+    subroutine read_initial_particles(env, cfg, phys, solids, path, p, stat, errmsg)
+        type(mpi_env_t), intent(in) :: env
+        type(config_t), intent(in) :: cfg
+        type(physics_t), intent(in) :: phys
+        type(solids_t), intent(in) :: solids
+        character(len=*), intent(in) :: path
+        type(particles_t), intent(inout) :: p
+        integer, intent(out) :: stat
+        character(len=:), allocatable, intent(out) :: errmsg
+        type(h5_file_t) :: file
+        integer :: dim, n, width, my_stat
+        integer(i8) :: n_rows, share, extra, offset, duplicate, n_duplicates
+        logical :: have(size(optional_names))
+        character(len=:), allocatable :: message
+
+        dim = cfg%domain%dimension
+        call h5_open_read(env, path, file, my_stat, message)
+        stat = agreed(env, my_stat)
+        if (stat /= 0) then
+            errmsg = "cannot open the initial particle file '" // path // "' (&domain " // &
+                "initial_particles): not there or not HDF5"
+            if (my_stat == 0) call h5_close(file)
+            return
+        end if
+
+        ! the layout: the same on every rank, checked on every rank
+        message = ''
+        call check_layout(file, dim, n_rows, width, have, message)
+        stat = agreed(env, merge(1, 0, len(message) > 0))
+        if (stat /= 0) then
+            call h5_close(file)
+            if (len(message) == 0) message = ' refused on another rank;'
+            errmsg = "the initial particle file '" // path // "' is refused:" // &
+                message(1:len(message) - 1)
+            return
+        end if
+
+        ! rows shared out evenly
+        share = n_rows / env%nranks
+        extra = mod(n_rows, int(env%nranks, i8))
+        n = int(share + merge(1_i8, 0_i8, env%rank < extra))
+        offset = env%rank * share + min(int(env%rank, i8), extra)
+        p%dim = dim
+        call particles_reserve(p, max(n, 1))
+        call particles_clear(p, 1, max(n, 1))
+        call read_fields(file, n, offset, width, have, p)
+        call h5_close(file, my_stat)
+        p%n_owned = n
+        p%n_ghost = 0
+        p%n_total = n
+        if (agreed(env, my_stat) /= 0) then
+            stat = 1
+            errmsg = "closing the initial particle file '" // path // "' failed"
+            return
+        end if
+
+        call complete_and_check(env, cfg, phys, solids, have, offset, p, message)
+        call find_duplicate_ids(env, p%id, n, n_duplicates, duplicate)
+        if (n_duplicates > 0) message = message // '; ' // text_of(n_duplicates) // &
+            ' ids given more than once (the smallest: ' // text_of(duplicate) // ')'
+        stat = merge(1, 0, len(message) > 0)   ! the same on every rank (global counts)
+        errmsg = ''
+        if (stat /= 0) errmsg = "the initial particle file '" // path // "' is refused: " // &
+            message(3:)
+    end subroutine read_initial_particles
+
+    !> Root attributes and dataset shapes; appends '; ...' to message for every problem.
+    subroutine check_layout(file, dim, n_rows, width, have, message)
+        type(h5_file_t), intent(in) :: file
+        integer, intent(in) :: dim
+        integer(i8), intent(out) :: n_rows
+        integer, intent(out) :: width
+        logical, intent(out) :: have(:)
+        character(len=:), allocatable, intent(inout) :: message
+        integer(i4) :: value
+        integer :: k, w, status
+        integer(i8) :: rows
+        if (h5_attribute_exists(file, 'format')) then
+            ! written by sphremesh: whole only with the marker, as restarts demand
+            value = 0
+            if (h5_attribute_exists(file, 'write_complete')) &
+                call h5_read_attribute(file, 'write_complete', value, status)
+            if (value /= 1) message = message // ' it is incomplete (no write_complete ' // &
+                'marker);'
+        end if
+        if (h5_attribute_exists(file, 'dimension')) then
+            call h5_read_attribute(file, 'dimension', value, status)
+            if (status /= 0 .or. value /= dim) message = message // ' its root attribute ' // &
+                'dimension is ' // text_of(int(value, i8)) // ', &domain dimension is ' // &
+                text_of(int(dim, i8)) // ';'
+        end if
+        n_rows = h5_dataset_rows(file, 'particles/position', width)
+        have = .false.
+        if (n_rows < 0 .or. .not. (width == 3 .or. width == dim)) then
+            message = message // ' the dataset /particles/position (N x 3 float64) is ' // &
+                'missing or of another shape;'
+            n_rows = 0
+            return
+        end if
+        if (n_rows == 0) message = message // ' it holds no particle (/particles/position ' // &
+            'has 0 rows);'
+        do k = 1, size(optional_names)
+            rows = h5_dataset_rows(file, 'particles/' // trim(optional_names(k)), w)
+            if (rows < 0) cycle
+            if (rows /= n_rows .or. (w /= optional_widths(k) .and. .not. &
+                    (optional_widths(k) == 3 .and. w == dim))) then
+                message = message // ' /particles/' // trim(optional_names(k)) // ' has ' // &
+                    text_of(rows) // ' rows of width ' // text_of(int(max(w, 1), i8)) // &
+                    ', expected ' // text_of(n_rows) // ' of width ' // &
+                    text_of(int(max(optional_widths(k), 1), i8)) // ';'
+            else
+                have(k) = .true.
+            end if
+        end do
+    end subroutine check_layout
+
+    !> Rows offset+1 .. offset+n of the datasets present (collective); the rest is left zero.
+    subroutine read_fields(file, n, offset, width, have, p)
+        type(h5_file_t), intent(in) :: file
+        integer, intent(in) :: n, width
+        integer(i8), intent(in) :: offset
+        logical, intent(in) :: have(:)
+        type(particles_t), intent(inout) :: p
+        real(wp), allocatable :: vectors(:, :), values(:)
+        integer(i8), allocatable :: ids(:)
+        integer(i4), allocatable :: ints(:)
+        integer :: k, w
+        allocate(values(max(n, 1)), ids(max(n, 1)), ints(max(n, 1)))
+        allocate(vectors(width, max(n, 1)))
+        call h5_read_rows(file, 'particles/position', vectors, n, offset)
+        p%x(1:width, 1:n) = vectors(:, 1:n)
+        do k = 1, size(optional_names)
+            if (.not. have(k)) cycle
+            associate (name => 'particles/' // trim(optional_names(k)))
+                select case (trim(optional_names(k)))
+                case ('velocity', 'wall_normal')
+                    if (h5_dataset_rows(file, name, w) < 0) cycle
+                    call read_vectors(name, w)
+                    if (optional_names(k) == 'velocity') p%v(1:w, 1:n) = vectors(1:w, 1:n)
+                    if (optional_names(k) == 'wall_normal') &
+                        p%wall_normal(1:w, 1:n) = vectors(1:w, 1:n)
+                case ('density', 'mass', 'energy', 'wall_distance')
+                    call h5_read_rows(file, name, values, n, offset)
+                    if (optional_names(k) == 'density') p%rho(1:n) = values(1:n)
+                    if (optional_names(k) == 'mass') p%m(1:n) = values(1:n)
+                    if (optional_names(k) == 'energy') p%e(1:n) = values(1:n)
+                    if (optional_names(k) == 'wall_distance') p%wall_distance(1:n) = values(1:n)
+                case ('id')
+                    call h5_read_rows(file, name, ids, n, offset)
+                    p%id(1:n) = ids(1:n)
+                case default   ! kind, level, solid
+                    call h5_read_rows(file, name, ints, n, offset)
+                    if (optional_names(k) == 'kind') p%kind(1:n) = ints(1:n)
+                    if (optional_names(k) == 'level') p%level(1:n) = ints(1:n)
+                    if (optional_names(k) == 'solid') p%solid(1:n) = ints(1:n)
+                end select
+            end associate
+        end do
+    contains
+        subroutine read_vectors(name, w)
+            character(len=*), intent(in) :: name
+            integer, intent(in) :: w
+            deallocate(vectors)
+            allocate(vectors(w, max(n, 1)))
+            call h5_read_rows(file, name, vectors, n, offset)
+        end subroutine read_vectors
+    end subroutine read_fields
+
+    !> Defaults for what the file lacks, the derived fields, and the checks of every
+    !> particle; message gets '; <count> particles <problem> (first: ...)' per problem
+    !> (counts over all ranks, the example from the lowest rank that has one: collective).
+    subroutine complete_and_check(env, cfg, phys, solids, have, offset, p, message)
+        type(mpi_env_t), intent(in) :: env
+        type(config_t), intent(in) :: cfg
+        type(physics_t), intent(in) :: phys
+        type(solids_t), intent(in) :: solids
+        logical, intent(in) :: have(:)
+        integer(i8), intent(in) :: offset
+        type(particles_t), intent(inout) :: p
+        character(len=:), allocatable, intent(inout) :: message
+        integer(i8) :: counts(n_problems), total
+        character(len=160) :: example(n_problems)
+        character(len=:), allocatable :: text
+        integer :: i, axis, solid, k, reporter, dim
+        real(wp) :: normal(3), distance, lo, hi
+        logical :: site
+
+        dim = cfg%domain%dimension
+        counts = 0
+        example = ''
+        do i = 1, p%n_owned
+            if (.not. have(5)) p%id(i) = offset + i
+            if (.not. have(2)) p%rho(i) = cfg%fluid%rho0
+            if (.not. have(3)) p%m(i) = cfg%fluid%rho0 * cfg%domain%dx**dim
+            if (.not. have(6)) p%kind(i) = KIND_FLUID
+            if (p%kind(i) /= KIND_FLUID .and. p%kind(i) /= KIND_WALL) call problem(1)
+            if (.not. (all(ieee_is_finite(p%x(:, i))) .and. all(ieee_is_finite(p%v(:, i))) &
+                       .and. ieee_is_finite(p%rho(i)) .and. ieee_is_finite(p%m(i)))) &
+                call problem(2)
+            if (dim == 2 .and. p%x(3, i) /= 0.0_wp) call problem(8)
+            if (p%kind(i) == KIND_FLUID) then
+                do axis = 1, dim
+                    lo = cfg%domain%box_lo(axis)
+                    hi = cfg%domain%box_hi(axis)
+                    if (p%x(axis, i) < lo .or. p%x(axis, i) > hi .or. &
+                        (cfg%domain%is_periodic(axis) .and. p%x(axis, i) >= hi)) then
+                        call problem(3)
+                        exit
+                    end if
+                end do
+                if (deepest_solid(solids, p%x(:, i), 0.0_wp) > 0) call problem(4)
+            else if (p%kind(i) == KIND_WALL) then
+                call wall_site(solids, p%x(:, i), cfg%domain%dx, site, solid, normal, distance)
+                if (.not. site) then
+                    call problem(5)
+                else
+                    if (.not. have(8)) p%solid(i) = solid
+                    if (.not. have(9)) p%wall_normal(:, i) = normal
+                    if (.not. have(10)) p%wall_distance(i) = distance
+                    if (.not. have(1)) p%v(:, i) = solid_velocity(solids%list(solid), p%x(:, i))
+                end if
+            end if
+            if (.not. (p%m(i) > 0.0_wp .and. p%rho(i) > 0.0_wp)) call problem(6)
+            if (p%id(i) <= 0) call problem(7)
+            p%p(i) = eos_pressure(phys%eos, p%rho(i), phys%rho0, phys%c, phys%gamma)
+            p%h(i) = phys%kernel%h
+            p%x_old(:, i) = p%x(:, i)
+            p%v_old(:, i) = p%v(:, i)
+            p%rho_old(i) = p%rho(i)
+            p%e_old(i) = p%e(i)
+        end do
+        do k = 1, n_problems
+            total = global_sum(env, counts(k))
+            if (total == 0) cycle
+            reporter = int(-global_max(env, int(merge(-env%rank, -huge(0), counts(k) > 0), i8)))
+            text = trim(example(k))
+            call broadcast_text(env, text, reporter)
+            message = message // '; ' // text_of(total) // ' ' // trim(problem_text(k)) // &
+                ' (first: ' // text // ')'
+        end do
+
+    contains
+
+        subroutine problem(which)
+            integer, intent(in) :: which
+            counts(which) = counts(which) + 1
+            if (counts(which) > 1) return
+            write(example(which), '(a,i0,a,3es14.6,a,i0)') 'id ', p%id(i), ' at', p%x(:, i), &
+                ' m, kind ', p%kind(i)
+        end subroutine problem
+    end subroutine complete_and_check
+
+    !> The same status on every rank: the largest.
+    integer function agreed(env, stat)
+        type(mpi_env_t), intent(in) :: env
+        integer, intent(in) :: stat
+        agreed = int(global_max(env, int(stat, i8)))
+    end function agreed
+
+    function text_of(value) result(text)
+        integer(i8), intent(in) :: value
+        character(len=:), allocatable :: text
+        character(len=24) :: buffer
+        write(buffer, '(i0)') value
+        text = trim(buffer)
+    end function text_of
+end module sph_particle_file
