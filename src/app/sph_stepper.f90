@@ -374,6 +374,9 @@ contains
         call evaluate_rates(sim, env)
         sim%last_limits = stable_timestep(sim, env)
         dt = sim%last_limits%dt
+        ! a fixed step (&numerics fixed_dt) overrides the limit: the health checks catch it
+        ! when it is too large
+        if (sim%cfg%numerics%fixed_dt > 0.0_wp) dt = sim%cfg%numerics%fixed_dt
         if (present(dt_cap)) dt = min(dt, dt_cap)
         call predictor(sim, dt)
         call refresh_halo(sim, env)

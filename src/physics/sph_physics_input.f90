@@ -25,6 +25,7 @@ module sph_physics_input
         character(len=name_len) :: density_method, viscosity_model, viscosity_normalisation
         character(len=name_len) :: wall_model
         real(wp) :: cfl, viscous_safety, force_safety, beta_max
+        real(wp) :: fixed_dt              !< s; 0 = the stable limit
         real(wp) :: repulsive_strength    !< D of eq. 2.18; 0 = velocity_scale**2
         real(wp) :: repulsive_r0          !< r0 of eq. 2.18; 0 = dx/2
         integer :: repulsive_n1, repulsive_n2
@@ -82,6 +83,8 @@ contains
             min_exclusive=0.0_wp, max=0.5_wp, doc='safety factor of the viscous limit')
         call grp%get_real('force_safety', num%force_safety, 0.25_wp, min_exclusive=0.0_wp, &
             max=1.0_wp, doc='safety factor of the force limit')
+        call grp%get_real('fixed_dt', num%fixed_dt, 0.0_wp, min=0.0_wp, unit='s', &
+            doc='a fixed time step instead of the stable limit; 0 = the limit')
         call grp%get_real('beta_max', num%beta_max, 10.0_wp, min=1.0_wp, &
             doc="cap of Morris' wall-velocity extrapolation factor")
         call grp%get_real('repulsive_strength', num%repulsive_strength, 0.0_wp, min=0.0_wp, &

@@ -1,0 +1,25 @@
+# An unstable run must be stopped by the health checks: exit status 3 on every rank, one
+# message matching EXPECT, no traceback, and the failure snapshot written.
+file(REMOVE_RECURSE ${WORKDIR})
+file(MAKE_DIRECTORY ${WORKDIR})
+execute_process(COMMAND ${MPIEXEC} ${NP_FLAG} ${NP} ${EXTRA} ${PROGRAM} ${INPUT}
+    WORKING_DIRECTORY ${WORKDIR} OUTPUT_VARIABLE out ERROR_VARIABLE err RESULT_VARIABLE rc
+    TIMEOUT 120)
+if(NOT rc EQUAL 3)
+    message(FATAL_ERROR "expected exit status 3 (unhealthy run), got '${rc}':\n${err}")
+endif()
+if(NOT err MATCHES "${EXPECT}")
+    message(FATAL_ERROR "stderr does not match '${EXPECT}':\n${err}")
+endif()
+if(err MATCHES "Backtrace|#0 ")
+    message(FATAL_ERROR "a traceback was printed:\n${err}")
+endif()
+string(REGEX MATCHALL "sphremesh: error" hits "${err}")
+list(LENGTH hits n)
+if(NOT n EQUAL 1)
+    message(FATAL_ERROR "expected exactly one error message, got ${n}:\n${err}")
+endif()
+file(GLOB failure_files ${WORKDIR}/output/*_failure_*.h5)
+if(NOT failure_files)
+    message(FATAL_ERROR "no failure snapshot in ${WORKDIR}/output")
+endif()
