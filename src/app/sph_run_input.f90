@@ -16,6 +16,7 @@ module sph_run_input
         integer :: max_steps
         integer :: log_interval          !< steps between log lines; 0 = automatic
         character(len=name_len) :: analytic
+        real(wp) :: wall_time_limit      !< s of wall time; 0 = none
     end type run_input_t
 
     type :: output_input_t
@@ -44,6 +45,8 @@ contains
         call grp%get_string('analytic', run%analytic, 'none', &
             choices=[character(len=10) :: 'none', 'poiseuille', 'couette'], &
             doc='report the L2 velocity error against this analytic channel solution')
+        call grp%get_real('wall_time_limit', run%wall_time_limit, 0.0_wp, min=0.0_wp, &
+            unit='s', doc='checkpoint and stop (status 75) after this much wall time; 0 = none')
     end subroutine read_run_input
 
     !> &output; the listed times must lie in [0, t_end] and increase.

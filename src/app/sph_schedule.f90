@@ -14,6 +14,7 @@ module sph_schedule
     use sph_stepper, only: simulation_t, simulation_write_snapshot, &
         simulation_write_checkpoint, simulation_analytic_error, fluid_density_range, &
         simulation_write_forces, simulation_log_forces
+    use sph_signals, only: signal_received
     implicit none
     private
     public :: schedule_t, schedule_init, schedule_dt_cap, schedule_after_step
@@ -42,7 +43,11 @@ module sph_schedule
         real(wp) :: wall_checkpoint = 0.0_wp
         logical :: finished = .false.
         logical :: forces_started = .false.      !< the forces file has this run's header
+        real(wp) :: wall_limit = 0.0_wp          !< s of wall time before stopping; 0 = none
+        character(len=:), allocatable :: stopped_by !< why the run stopped early ('' = it did not)
     end type schedule_t
+
+    integer, parameter :: SIGTERM = 15   !< POSIX (Linux and the BSDs)
 
 contains
 
@@ -70,6 +75,8 @@ contains
         sched%finished = .false.
         ! a restart appends to the forces file of the run it continues
         sched%forces_started = step > 0
+        sched%wall_limit = cfg%run%wall_time_limit
+        sched%stopped_by = ''
     end subroutine schedule_init
 
     !> Set next_output to the first snapshot time after time (interval multiples and listed
@@ -155,6 +162,7 @@ contains
             end if
         end if
         sched%finished = run_finished(sched, sim%time, sim%step)
+        if (.not. sched%finished) call check_stop_request(sched, env)
         if (output_due(sched, sim%time)) then
             call simulation_write_snapshot(sim, env)
             call advance_output_time(sched, sim%time)
@@ -177,6 +185,27 @@ contains
         if (mod(sim%step, sched%log_every) == 0 .or. sched%finished) &
             call log_progress(sched, sim, env)
     end subroutine schedule_after_step
+
+    !> A scheduler's SIGTERM or SIGUSR1 on any rank, or the wall-time limit on rank 0's clock:
+    !> the run ends after this step with a checkpoint (collective).
+    subroutine check_stop_request(sched, env)
+        type(schedule_t), intent(inout) :: sched
+        type(mpi_env_t), intent(in) :: env
+        integer(i8) :: signal
+        real(wp) :: wall_now
+        character(len=64) :: text
+        signal = global_max(env, int(signal_received(), i8))
+        if (signal > 0) then
+            write(text, '(a,i0,a)') 'signal ', signal, ' ('
+            sched%stopped_by = trim(text) // merge('SIGTERM', 'SIGUSR1', signal == SIGTERM) &
+                // ')'
+        else if (sched%wall_limit > 0.0_wp) then
+            call wall_clock(wall_now)
+            if (global_max(env, merge(wall_now - sched%wall_start, 0.0_wp, env%rank == 0)) &
+                >= sched%wall_limit) sched%stopped_by = '&run wall_time_limit'
+        end if
+        if (len(sched%stopped_by) > 0) sched%finished = .true.
+    end subroutine check_stop_request
 
     subroutine log_progress_header()
         call log_info('     step     time [s]       dt [s]   max |v| [m/s]  ' // &
@@ -222,6 +251,9 @@ contains
         write(line, '(a,i0,a,es12.5,a,f10.2,a)') 'finished: ', sim%step - sched%first_step, &
             ' steps to t = ', sim%time, ' s in ', wall_now - sched%wall_start, ' s wall'
         call log_info(trim(line))
+        if (len(sched%stopped_by) > 0) call log_info('stopped early by ' // &
+            sched%stopped_by // ' at the checkpoint above; continue with --restart ' // &
+            trim(sim%cfg%output%output_dir) // ' (exit status 75)')
         call simulation_log_forces(sim, env)
         if (trim(sim%ref%name) == 'none') return
         error = simulation_analytic_error(sim, env)

@@ -16,11 +16,13 @@ module sph_simulation
 
 contains
 
-    !> The whole run, to t_end or max_steps (collective).
-    subroutine simulation_run(env, cfg, restart_from)
+    !> The whole run, to t_end or max_steps (collective). status: 0, or 75 when a signal or
+    !> the wall-time limit stopped it early after a checkpoint (a job script resubmits).
+    subroutine simulation_run(env, cfg, restart_from, status)
         type(mpi_env_t), intent(in) :: env
         type(config_t), intent(in) :: cfg
         character(len=*), intent(in) :: restart_from
+        integer, intent(out) :: status
         type(simulation_t) :: sim
         type(schedule_t) :: sched
 
@@ -41,5 +43,6 @@ contains
             call schedule_after_step(sched, sim, env)
         end do
         call schedule_final_report(sched, sim, env)
+        status = merge(75, 0, len(sched%stopped_by) > 0)
     end subroutine simulation_run
 end module sph_simulation

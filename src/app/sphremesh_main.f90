@@ -8,18 +8,22 @@ program sphremesh_main
     use sph_input, only: load_config
     use sph_version, only: code_version, build_options
     use sph_simulation, only: simulation_run
+    use sph_signals, only: signals_install
     use mpi_f08, only: MPI_Finalize
     implicit none
 
     type(mpi_env_t) :: env
     type(options_t) :: opts
     type(config_t) :: cfg
-    integer :: stat, ierr
+    integer :: stat, ierr, status
     character(len=:), allocatable :: errmsg
     character(len=16) :: nranks_text
 
     call mpi_env_init_world(env)
     call logger_init(env%rank)
+    ! a scheduler's SIGTERM/SIGUSR1 asks for a checkpoint and a clean stop (sph_schedule)
+    call signals_install(stat)
+    if (stat /= 0) call log_info('warning: cannot install the SIGTERM/SIGUSR1 handlers')
 
     call parse_command_line(opts, stat, errmsg)
     if (stat /= 0) call fatal_collective('command line', errmsg)
@@ -29,7 +33,7 @@ program sphremesh_main
             call log_info(code_version)
             call log_info('build: ' // build_options)
         end if
-        call finish()
+        call finish(0)
     end if
 
     write(nranks_text, '(i0)') env%nranks
@@ -40,17 +44,19 @@ program sphremesh_main
     call log_info('resolved configuration (' // opts%input_file // '):')
     call log_info(config_to_text(cfg))
 
-    call simulation_run(env, cfg, opts%restart_from)
+    call simulation_run(env, cfg, opts%restart_from, status)
 
     call log_warning_summary()
-    call finish()
+    call finish(status)
 
 contains
 
-    subroutine finish()
+    !> Leave with a status: 0 done, 75 stopped early with a checkpoint (resubmit).
+    subroutine finish(exit_status)
+        integer, intent(in) :: exit_status
         call mpi_env_free(env)
         call MPI_Finalize(ierr)
         call check_mpi(ierr, 'MPI_Finalize')
-        call exit_process(0)
+        call exit_process(exit_status)
     end subroutine finish
 end program sphremesh_main
