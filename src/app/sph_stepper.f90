@@ -12,7 +12,7 @@ module sph_stepper
     use sph_particles, only: particles_t, particles_init, particles_gather, KIND_FLUID, &
         HALO_MOVE, HALO_DENSITY, HALO_STRAIN
     use sph_physics, only: physics_t, physics_from_config, DENSITY_SUMMATION, &
-        VISCOSITY_STRAIN_RATE, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR
+        VISCOSITY_STRAIN_RATE, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR, SHIFTING_NONE
     use sph_kernel, only: kernel_name
     use sph_walls, only: solids_from_config, build_mirrors, wall_layers
     use sph_solids, only: solids_t
@@ -22,6 +22,7 @@ module sph_stepper
     use sph_cell_list, only: neighbour_list_t, build_neighbour_list, cell_sort_order
     use sph_rates, only: update_pressure, compute_summation_density, compute_strain_rate, &
         compute_rates, local_max_speed, local_max_acceleration
+    use sph_shifting, only: shifting_diffusion, shift_particles
     use sph_timestep, only: timestep_limits_t, timestep_limits
     use sph_integrator, only: save_step_start, advance
     use sph_initial, only: create_lattice_particles
@@ -383,6 +384,7 @@ contains
         call prepare_boundaries(sim, dt)
         call evaluate_rates(sim, env)
         call corrector(sim, dt)
+        call shift(sim, env, dt)
         call migrate_and_rebuild(sim, env)
         call remesh_if_due(sim, env)
         call update_transition_zones(sim, env)
@@ -429,6 +431,22 @@ contains
         sim%step = sim%step + 1
         sim%last_limits%dt = dt
     end subroutine corrector
+
+    !> Particle shifting (&numerics shifting, sph_shifting), when chosen: after the corrector
+    !> the ghosts still hold the predicted (half-step) state, so they are refreshed first and
+    !> the neighbour list is rebuilt for the corrected positions; the shift is then computed
+    !> from the end-of-step state. D = A h |v|max dt with the step-start |v|max (global).
+    !> Particles moved by the shift are handed on by the migration that follows.
+    subroutine shift(sim, env, dt)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        real(wp), intent(in) :: dt
+        if (sim%phys%shifting == SHIFTING_NONE) return
+        call halo_refresh(sim%halo, env, sim%p, HALO_MOVE)
+        call refresh_neighbours(sim)
+        call shift_particles(sim%phys, sim%p, sim%nl, &
+            shifting_diffusion(sim%phys, sim%last_limits%max_speed, dt))
+    end subroutine shift
 
     !> Particles that left go to their new owner; ghosts, mirrors, the neighbour list and
     !> the pressure are rebuilt for the new positions.

@@ -10,11 +10,13 @@ module sph_physics
     public :: physics_t, physics_from_config
     public :: DENSITY_CONTINUITY, DENSITY_SUMMATION, VISCOSITY_MORRIS, VISCOSITY_STRAIN_RATE
     public :: WALLS_MORRIS, WALLS_REPULSIVE, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR
+    public :: SHIFTING_NONE, SHIFTING_LIND
 
     integer, parameter :: DENSITY_CONTINUITY = 1, DENSITY_SUMMATION = 2
     integer, parameter :: VISCOSITY_MORRIS = 1, VISCOSITY_STRAIN_RATE = 2
     integer, parameter :: WALLS_MORRIS = 1, WALLS_REPULSIVE = 2, WALLS_MIRROR = 3
     integer, parameter :: WALLS_REPULSIVE_MIRROR = 4
+    integer, parameter :: SHIFTING_NONE = 0, SHIFTING_LIND = 1
 
     type :: physics_t
         integer :: dim = 2
@@ -35,6 +37,9 @@ module sph_physics
         real(wp) :: repulsive_d = 0.0_wp, repulsive_r0 = 0.0_wp
         integer :: repulsive_n1 = 12, repulsive_n2 = 4
         real(wp) :: velocity_scale = 0.0_wp, length_scale = 0.0_wp
+        integer :: shifting = SHIFTING_NONE
+        real(wp) :: shifting_coefficient = 2.0_wp  !< A of D = A h |v|max dt (sph_shifting)
+        real(wp) :: shifting_limit = 0.1_wp        !< largest shift per step / dx
     end type physics_t
 
 contains
@@ -128,6 +133,10 @@ contains
         if (phys%repulsive_r0 <= 0.0_wp) phys%repulsive_r0 = 0.5_wp * cfg%domain%dx
         phys%repulsive_n1 = cfg%numerics%repulsive_n1
         phys%repulsive_n2 = cfg%numerics%repulsive_n2
+        phys%shifting = SHIFTING_NONE
+        if (trim(cfg%numerics%shifting) == 'lind') phys%shifting = SHIFTING_LIND
+        phys%shifting_coefficient = cfg%numerics%shifting_coefficient
+        phys%shifting_limit = cfg%numerics%shifting_limit
     end subroutine physics_from_config
 
     !> Morris' viscous term is exact for a quadratic velocity field only if the discrete second

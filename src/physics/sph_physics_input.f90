@@ -29,6 +29,9 @@ module sph_physics_input
         real(wp) :: repulsive_strength    !< D of eq. 2.18; 0 = velocity_scale**2
         real(wp) :: repulsive_r0          !< r0 of eq. 2.18; 0 = dx/2
         integer :: repulsive_n1, repulsive_n2
+        character(len=name_len) :: shifting
+        real(wp) :: shifting_coefficient  !< A of Lind's D = A h |v|max dt
+        real(wp) :: shifting_limit        !< largest shift per step, in units of dx
     end type numerics_input_t
 
 contains
@@ -95,11 +98,21 @@ contains
             doc='exponent n1 of eq. 2.18 (> n2)')
         call grp%get_int('repulsive_n2', num%repulsive_n2, 4, min=1, &
             doc='exponent n2 of eq. 2.18 (>= 1)')
+        call grp%get_string('shifting', num%shifting, 'none', &
+            choices=[character(len=8) :: 'none', 'lind'], &
+            doc='particle shifting after each step (Lind et al. 2012)')
+        call grp%get_real('shifting_coefficient', num%shifting_coefficient, 2.0_wp, &
+            min_exclusive=0.0_wp, doc='A of the shifting coefficient D = A h |v|max dt')
+        call grp%get_real('shifting_limit', num%shifting_limit, 0.1_wp, min_exclusive=0.0_wp, &
+            max=0.5_wp, doc='largest shift of a particle in one step, in units of dx')
         if (num%repulsive_n1 <= num%repulsive_n2) &
             call grp%error('repulsive_n1, repulsive_n2', 'need n1 > n2 >= 1')
         if (trim(num%viscosity_model) == 'strain_rate' .and. &
             (trim(num%wall_model) == 'mirror' .or. trim(num%wall_model) == 'repulsive_mirror')) &
             call grp%error('viscosity_model', "'strain_rate' works with wall_model = " // &
                 "'morris' only (mirror images do not carry a consistent strain rate)")
+        if (trim(num%shifting) /= 'none' .and. trim(num%wall_model) /= 'morris') &
+            call grp%error('shifting', "'lind' works with wall_model = 'morris' only (the " // &
+                "wall particles must fill the support to complete the concentration field)")
     end subroutine read_numerics_input
 end module sph_physics_input
