@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# Fault test: a run sent SIGTERM mid-way writes a checkpoint and exits with status 75; the
+# run continued from it ends bitwise where an uninterrupted run ends (same rank count).
+# usage: check_signal_restart.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM INPUT WORKDIR PYTHON COMPARER
+set -u
+mpiexec=$1 np_flag=$2 np=$3 extra=$4 program=$5 input=$6 work=$7 python=$8 comparer=$9
+run() { "$mpiexec" "$np_flag" "$np" $extra "$program" "$input" "$@"; }
+rm -rf "$work" && mkdir -p "$work/straight" "$work/signal" || exit 1
+
+cd "$work/straight" && run > log 2>&1 || { echo "the uninterrupted run failed:"; cat log; exit 1; }
+
+# the interrupted run: SIGTERM to its ranks (found by their working directory) once the
+# first snapshot exists, as a scheduler would send it
+cd "$work/signal"
+run > log 2>&1 &
+launcher=$!
+for _ in $(seq 1 600); do
+    ls output/*_000000.h5 > /dev/null 2>&1 && break
+    sleep 0.1
+done
+sleep 0.5
+for pid in $(pgrep -x sphremesh); do
+    [ "$(readlink "/proc/$pid/cwd")" = "$PWD" ] && kill -TERM "$pid"
+done
+wait "$launcher"
+rc=$?
+if [ "$rc" -ne 75 ]; then
+    echo "expected exit status 75 after SIGTERM, got $rc (did the run end before the signal?):"
+    cat log
+    exit 1
+fi
+grep -q "stopped early by signal 15 (SIGTERM)" log || { echo "no stop message:"; cat log; exit 1; }
+ls output/*_checkpoint_*.h5 > /dev/null 2>&1 || { echo "no checkpoint written"; exit 1; }
+
+run --restart output > restart.log 2>&1 || { echo "the continued run failed:"; cat restart.log; exit 1; }
+final=$(cd "$work/straight/output" && ls *_0*.h5 | grep -v checkpoint | sort | tail -1)
+[ -e "output/$final" ] || { echo "the continued run has no $final"; exit 1; }
+"$python" "$comparer" "$work/straight/output/$final" "output/$final" || {
+    echo "the continued run differs from the uninterrupted one"; exit 1; }
+echo "stopped at $(grep -o 'checkpoint: [^ ]*' log | tail -1); continued to $final: identical"
