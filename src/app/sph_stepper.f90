@@ -497,8 +497,8 @@ contains
             ', t = ', sim%time, ' s'
         message = problem%what // trim(where)
         call broadcast_text(env, message, reporter)
-        path = trim(sim%cfg%output%output_dir) // '/' // trim(sim%cfg%run%case_name) // &
-            '_failure_' // step_text(sim%step) // '.h5'
+        path = snapshot_filename(trim(sim%cfg%output%output_dir), &
+            trim(sim%cfg%run%case_name) // '_failure', sim%step)
         call snapshot_begin(env, sim%p, path, sim%time, sim%step, sim%cfg%domain%dimension, &
             code_version, sim%input_text, file, stat, errmsg)
         if (stat == 0) then
@@ -512,15 +512,6 @@ contains
         end if
         call fatal_collective('health check', message, status=3)
     end subroutine check_health
-
-    !> A step number with at least 6 digits, as in snapshot names.
-    function step_text(step) result(text)
-        integer(i8), intent(in) :: step
-        character(len=:), allocatable :: text
-        character(len=32) :: digits
-        write(digits, '(i0.6)') step
-        text = trim(digits)
-    end function step_text
 
     !> Density is integrated (continuity) unless it is summed from the neighbours.
     logical function integrated_density(sim)
