@@ -46,6 +46,7 @@
 module sph_coarsen
     use sph_kinds, only: wp, i8
     use sph_cell_list, only: neighbour_list_t, build_neighbour_list
+    use sph_remesh_images, only: with_periodic_images
     implicit none
     private
     public :: coarsen_select, coarsen_radii, id_hash, KEPT_CLASS
@@ -153,31 +154,9 @@ contains
             real(wp), allocatable :: xa(:, :)
             integer, allocatable :: orig(:)
             type(neighbour_list_t) :: nl
-            integer :: a, m, s, sh(3), nsh, ntot, b
-            real(wp) :: y(3), d(3)
-            nsh = 1
-            if (periodic) nsh = 3**dim
-            allocate(xa(3, n * nsh), orig(n * nsh))
-            xa(:, 1:n) = x(:, 1:n)
-            xa(dim + 1:, 1:n) = 0.0_wp
-            orig(1:n) = [(a, a = 1, n)]
-            ntot = n
-            ! images only when periodic (with nsh = 1, s = 0 would be the shift (-1, -1, -1))
-            if (.not. periodic) nsh = 0
-            do s = 0, nsh - 1
-                sh = 0
-                sh(1) = mod(s, 3) - 1
-                if (dim >= 2) sh(2) = mod(s / 3, 3) - 1
-                if (dim == 3) sh(3) = s / 9 - 1
-                if (all(sh == 0)) cycle
-                do a = 1, n
-                    y = xa(:, a) + real(sh, wp) * bx
-                    if (any(y(1:dim) < -r_far .or. y(1:dim) >= bx(1:dim) + r_far)) cycle
-                    ntot = ntot + 1
-                    xa(:, ntot) = y
-                    orig(ntot) = a
-                end do
-            end do
+            integer :: a, m, s, ntot, b
+            real(wp) :: d(3)
+            call with_periodic_images(dim, n, x, periodic, bx, r_far, xa, orig, ntot)
             call build_neighbour_list(xa, ntot, n, dim, r_far, nl)
             allocate(astart(n + 1), adj(max(nl%n_pairs, 1)))
             m = 0

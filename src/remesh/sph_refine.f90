@@ -38,6 +38,7 @@
 module sph_refine
     use sph_kinds, only: wp, i8
     use sph_cell_list, only: neighbour_list_t, build_neighbour_list
+    use sph_remesh_images, only: with_periodic_images
     implicit none
     private
     public :: refine_positions, EDGE_FACTOR
@@ -192,31 +193,8 @@ contains
             real(wp), allocatable :: xa(:, :)
             integer, allocatable :: orig(:)
             type(neighbour_list_t) :: nl
-            integer :: i, m, t, sh(3), nsh, ntot, j
-            real(wp) :: y(3)
-            nsh = 1
-            if (periodic) nsh = 3**dim
-            allocate(xa(3, n * nsh), orig(n * nsh))
-            xa(:, 1:n) = x(:, 1:n)
-            xa(dim + 1:, 1:n) = 0.0_wp
-            orig(1:n) = [(i, i = 1, n)]
-            ntot = n
-            ! images only when periodic (with nsh = 1, t = 0 would be the shift (-1, -1, -1))
-            if (.not. periodic) nsh = 0
-            do t = 0, nsh - 1
-                sh = 0
-                sh(1) = mod(t, 3) - 1
-                if (dim >= 2) sh(2) = mod(t / 3, 3) - 1
-                if (dim == 3) sh(3) = t / 9 - 1
-                if (all(sh == 0)) cycle
-                do i = 1, n
-                    y = xa(:, i) + real(sh, wp) * bx
-                    if (any(y(1:dim) < -rc .or. y(1:dim) >= bx(1:dim) + rc)) cycle
-                    ntot = ntot + 1
-                    xa(:, ntot) = y
-                    orig(ntot) = i
-                end do
-            end do
+            integer :: i, m, t, ntot, j
+            call with_periodic_images(dim, n, x, periodic, bx, rc, xa, orig, ntot)
             call build_neighbour_list(xa, ntot, n, dim, rc, nl)
             allocate(astart(n + 1), adj(nl%n_pairs))
             m = 0
