@@ -7,6 +7,7 @@ module sph_command_line
     type :: options_t
         logical :: show_help = .false.
         logical :: show_version = .false.
+        logical :: check_only = .false.     !< --check: set up, report, write nothing
         character(len=:), allocatable :: input_file
         character(len=:), allocatable :: restart_from   !< checkpoint file or directory, '' = none
     end type options_t
@@ -33,6 +34,8 @@ contains
                 opts%show_help = .true.
             case ('-V', '--version')
                 opts%show_version = .true.
+            case ('--check')
+                opts%check_only = .true.
             case ('--restart')
                 if (i == n) then
                     stat = 1
@@ -78,6 +81,7 @@ contains
         character(len=*), parameter :: nl = new_line('a')
         text = &
             'usage: mpirun -np N sphremesh INPUT.nml [--restart CHECKPOINT.h5|DIR]' // nl // &
+            '       mpirun -np N sphremesh --check INPUT.nml' // nl // &
             '       sphremesh --help | --version' // nl // nl // &
             'Smoothed Particle Hydrodynamics for low-Reynolds-number, nearly incompressible' // &
             nl // 'flows, configured by a Fortran namelist file (see doc/input.md and input/).' // &
@@ -86,8 +90,12 @@ contains
             '  -h, --help         print this help and exit' // nl // &
             '  -V, --version      print the version, git hash and build options and exit' // nl // &
             '  --restart PATH     continue from a checkpoint file, or from the newest' // nl // &
-            '                     complete checkpoint in directory PATH' // nl // nl // &
+            '                     complete checkpoint in directory PATH' // nl // &
+            '  --check            check the input and set the run up: print the particle' // nl // &
+            '                     counts, memory, time step and steps, then stop (no output)' // &
+            nl // nl // &
             'namelist groups: &run &output &domain &fluid &numerics &parallel &restart' // nl // &
+            '                 &health &body (see doc/input.md)' // nl // &
             'example: mpirun -np 2 sphremesh input/poiseuille.nml'
     end function usage_text
 end module sph_command_line

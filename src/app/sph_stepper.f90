@@ -10,7 +10,7 @@ module sph_stepper
     use sph_errors, only: fatal_collective
     use sph_logger, only: log_info
     use sph_particles, only: particles_t, particles_init, particles_gather, KIND_FLUID, &
-        HALO_MOVE, HALO_DENSITY, HALO_STRAIN
+        HALO_MOVE, HALO_DENSITY, HALO_STRAIN, pack_widths, ALL_FIELDS
     use sph_physics, only: physics_t, physics_from_config, DENSITY_SUMMATION, &
         VISCOSITY_STRAIN_RATE, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR, SHIFTING_NONE
     use sph_kernel, only: kernel_name
@@ -41,6 +41,7 @@ module sph_stepper
     implicit none
     private
     public :: simulation_solid_forces, simulation_write_forces, simulation_log_forces
+    public :: simulation_check_report
     public :: simulation_t, simulation_setup, simulation_step, simulation_rebalance
     public :: simulation_analytic_error, simulation_prepare_neighbours, simulation_free
     public :: simulation_restart, simulation_write_checkpoint, simulation_write_snapshot
@@ -346,6 +347,66 @@ contains
             call log_info(trim(line))
         end do
     end subroutine simulation_log_forces
+
+    !> What --check reports after set-up (collective): particles per kind and level, the
+    !> memory they take, the first time step with its limiting criterion and the steps to
+    !> t_end. Evaluates the rates once; advances nothing and writes no file.
+    subroutine simulation_check_report(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        type(timestep_limits_t) :: lim
+        integer :: level, max_level
+        integer(i8) :: counts(3), pairs
+        real(wp) :: bytes, limit_value
+        character(len=256) :: line
+        character(len=:), allocatable :: limiting
+        max_level = int(global_max(env, int(maxval(sim%p%level(1:sim%p%n_owned), &
+            mask=sim%p%n_owned > 0), i8)))
+        do level = 0, max(max_level, 0)
+            counts = global_sum(env, [ &
+                int(count(sim%p%kind(1:sim%p%n_owned) == KIND_FLUID .and. &
+                    sim%p%level(1:sim%p%n_owned) == level), i8), &
+                int(count(sim%p%kind(1:sim%p%n_owned) /= KIND_FLUID .and. &
+                    sim%p%level(1:sim%p%n_owned) == level), i8), &
+                int(count(sim%p%level(1:sim%p%n_owned) == level), i8)])
+            write(line, '(a,i0,a,i0,a,i0,a,i0,a)') 'check: level ', level, ': ', counts(3), &
+                ' particles (', counts(1), ' fluid, ', counts(2), ' wall)'
+            call log_info(trim(line))
+        end do
+        ! storage of every field of every slot (owned, ghosts, mirrors) and the neighbour list
+        pairs = global_sum(env, int(sim%nl%n_pairs, i8))
+        bytes = global_sum(env, real(sim%p%capacity, wp) * particle_bytes(sim%p)) + &
+            4.0_wp * real(pairs, wp)
+        write(line, '(a,f10.1,a,f8.1,a,i0,a)') 'check: memory about ', bytes / 1.0e6_wp, &
+            ' MB over all ranks (', bytes / max(1.0_wp, real(global_sum(env, &
+            int(sim%p%n_owned, i8)), wp)), ' bytes per particle, ', pairs, ' neighbour pairs)'
+        call log_info(trim(line))
+        call evaluate_rates(sim, env)
+        lim = stable_timestep(sim, env)
+        limit_value = lim%dt
+        limiting = 'CFL'
+        if (lim%viscous <= min(lim%cfl, lim%force)) limiting = 'viscous'
+        if (lim%force <= min(lim%cfl, lim%viscous)) limiting = 'force'
+        if (sim%cfg%numerics%fixed_dt > 0.0_wp) then
+            limit_value = sim%cfg%numerics%fixed_dt
+            limiting = '&numerics fixed_dt'
+        end if
+        write(line, '(a,es10.3,a,es10.3,a,es10.3,a,es10.3,a)') 'check: first time step ', &
+            limit_value, ' s, limited by ' // limiting // ' (CFL ', lim%cfl, ', viscous ', &
+            lim%viscous, ', force ', lim%force, ')'
+        call log_info(trim(line))
+        write(line, '(a,i0,a,es10.3,a)') 'check: about ', nint(max(0.0_wp, &
+            sim%cfg%run%t_end - sim%time) / limit_value, i8), ' steps to t_end = ', &
+            sim%cfg%run%t_end, ' s at that step'
+        call log_info(trim(line))
+    contains
+        real(wp) function particle_bytes(p)
+            type(particles_t), intent(in) :: p
+            integer :: n_real, n_int
+            call pack_widths(p, ALL_FIELDS, n_real, n_int)
+            particle_bytes = 8.0_wp * n_real + 8.0_wp * 1 + 4.0_wp * (n_int - 1)
+        end function particle_bytes
+    end subroutine simulation_check_report
 
     !> Time-step limit for the current rates (collective).
     function stable_timestep(sim, env) result(lim)

@@ -8,6 +8,7 @@ program sphremesh_main
     use sph_input, only: load_config
     use sph_version, only: code_version, build_options
     use sph_simulation, only: simulation_run
+    use sph_stepper, only: simulation_t, simulation_setup, simulation_check_report
     use sph_signals, only: signals_install
     use mpi_f08, only: MPI_Finalize
     implicit none
@@ -15,6 +16,7 @@ program sphremesh_main
     type(mpi_env_t) :: env
     type(options_t) :: opts
     type(config_t) :: cfg
+    type(simulation_t) :: sim
     integer :: stat, ierr, status
     character(len=:), allocatable :: errmsg
     character(len=16) :: nranks_text
@@ -44,6 +46,13 @@ program sphremesh_main
     call log_info('resolved configuration (' // opts%input_file // '):')
     call log_info(config_to_text(cfg))
 
+    if (opts%check_only) then
+        ! the input is valid (load_config stopped otherwise): set up and report, write nothing
+        call simulation_setup(sim, env, cfg)
+        call simulation_check_report(sim, env)
+        call log_info('check: the input is valid')
+        call finish(0)
+    end if
     call simulation_run(env, cfg, opts%restart_from, status)
 
     call log_warning_summary()

@@ -1,0 +1,20 @@
+# --check: the input is checked and the run set up and described, and nothing is written.
+file(REMOVE_RECURSE ${WORKDIR})
+file(MAKE_DIRECTORY ${WORKDIR})
+execute_process(COMMAND ${MPIEXEC} ${NP_FLAG} ${NP} ${EXTRA} ${PROGRAM} --check ${INPUT}
+    WORKING_DIRECTORY ${WORKDIR} OUTPUT_VARIABLE out ERROR_VARIABLE err RESULT_VARIABLE rc
+    TIMEOUT 60)
+if(NOT rc EQUAL 0)
+    message(FATAL_ERROR "--check exited with '${rc}':\n${out}\n${err}")
+endif()
+foreach(expect "check: level 0: 920 particles \\(800 fluid, 120 wall\\)"
+        "check: memory about" "check: first time step +1\\.320E-04 s, limited by viscous"
+        "check: about 17[0-9] steps to t_end" "check: the input is valid")
+    if(NOT out MATCHES "${expect}")
+        message(FATAL_ERROR "--check output lacks '${expect}':\n${out}")
+    endif()
+endforeach()
+file(GLOB created ${WORKDIR}/*)
+if(created)
+    message(FATAL_ERROR "--check wrote files: ${created}")
+endif()
