@@ -43,6 +43,7 @@ program sphremesh_main
     if (stat /= 0) call fatal_collective('input', errmsg)
     call log_info('resolved configuration (' // opts%input_file // '):')
     call log_info(config_to_text(cfg))
+    if (len(cfg%output%note) > 0) call log_info('note: ' // cfg%output%note)
 
     call simulation_run(env, cfg, opts%restart_from, status)
 
