@@ -23,6 +23,7 @@ module sph_run_input
         character(len=path_len) :: output_dir
         real(wp) :: output_interval       !< 0 = first and last state only
         real(wp), allocatable :: output_times(:)   !< exact snapshot times, increasing
+        character(len=:), allocatable :: note      !< entries skipped (past t_end); '' = none
     end type output_input_t
 
 contains
@@ -49,30 +50,63 @@ contains
             unit='s', doc='checkpoint and stop (status 75) after this much wall time; 0 = none')
     end subroutine read_run_input
 
-    !> &output; the listed times must lie in [0, t_end] and increase.
+    !> &output; the listed times must lie in [0, t_end] and increase. Entries past t_end (a
+    !> shortened run) are skipped with a note in out%note, not refused. The output folder must
+    !> be creatable: its nearest existing ancestor must be a directory (nothing is made here).
     subroutine read_output_input(grp, t_end, out)
         type(nml_group_t), intent(inout) :: grp
         real(wp), intent(in) :: t_end
         type(output_input_t), intent(out) :: out
-        integer :: k
+        integer :: k, n_kept
+        character(len=:), allocatable :: problem
+        character(len=32) :: t_text, n_text
         call grp%get_string('output_dir', out%output_dir, 'output', &
             doc='directory for snapshots (created if missing)')
-        if (len_trim(out%output_dir) == 0) call grp%error('output_dir', 'must not be empty')
+        if (len_trim(out%output_dir) == 0) then
+            call grp%error('output_dir', 'must not be empty')
+        else
+            call check_creatable(trim(out%output_dir), problem)
+            if (len(problem) > 0) call grp%error('output_dir', "'" // &
+                trim(out%output_dir) // "' cannot be created: " // problem)
+        end if
         call grp%get_real('output_interval', out%output_interval, 0.0_wp, min=0.0_wp, &
             unit='s', doc='simulated time between snapshots; 0 = first, last and listed only')
         call grp%get_real_list('output_times', out%output_times, max_output_times, &
             min=0.0_wp, unit='s', doc='times at which a snapshot is written exactly')
-        do k = 1, size(out%output_times)
-            if (out%output_times(k) > t_end) then
-                call grp%error('output_times', 'every entry must lie in [0, t_end]')
+        out%note = ''
+        do k = 2, size(out%output_times)
+            if (out%output_times(k) <= out%output_times(k - 1)) then
+                call grp%error('output_times', 'must be strictly increasing')
                 exit
             end if
-            if (k > 1) then
-                if (out%output_times(k) <= out%output_times(k - 1)) then
-                    call grp%error('output_times', 'must be strictly increasing')
-                    exit
-                end if
-            end if
         end do
+        n_kept = count(out%output_times <= t_end)
+        if (n_kept < size(out%output_times)) then
+            write(t_text, '(es10.3)') t_end
+            write(n_text, '(i0)') size(out%output_times) - n_kept
+            out%note = '&output output_times: ' // trim(n_text) // &
+                ' entries past t_end = ' // trim(adjustl(t_text)) // ' s skipped'
+            out%output_times = pack(out%output_times, out%output_times <= t_end)
+        end if
     end subroutine read_output_input
+
+    !> Why a folder cannot be made with mkdir -p ('' if it can): an existing path component
+    !> that is not a directory. Nothing is created.
+    subroutine check_creatable(path, problem)
+        character(len=*), intent(in) :: path
+        character(len=:), allocatable, intent(out) :: problem
+        integer :: k
+        logical :: is_dir, exists
+        problem = ''
+        do k = 2, len(path) + 1
+            if (k <= len(path)) then
+                if (path(k:k) /= '/') cycle
+            end if
+            inquire(file=path(1:k - 1) // '/.', exist=is_dir)
+            if (is_dir) cycle
+            inquire(file=path(1:k - 1), exist=exists)
+            if (exists) problem = path(1:k - 1) // ' is not a directory'
+            return
+        end do
+    end subroutine check_creatable
 end module sph_run_input

@@ -85,6 +85,12 @@ contains
         cfg%source_file = source_name
         call nml_parse(text, source_name, file, stat, errmsg)
         if (stat /= 0) return
+        if (size(file%groups) == 0) then   ! an empty or all-comment file: surely a mistake
+            stat = 1
+            errmsg = source_name // ': no namelist group (an empty file?); give at least ' // &
+                'one of &' // trim(known_groups(1)) // ', &' // trim(known_groups(3)) // ', ...'
+            return
+        end if
         errmsg = ''
         call file%check_groups([known_groups, list_groups], list_groups, stat, errmsg)
         do g = 1, size(known_groups)

@@ -356,7 +356,11 @@ contains
                     pos = pos + 1
                     exit
                 end if
-                if (text(pos:pos) == nl) line = line + 1
+                if (text(pos:pos) == nl) then   ! no key holds a line break: a missing quote
+                    call fail(start_line, 'string not closed by ' // q // &
+                        ' on its line in &' // grp%name)
+                    return
+                end if
                 if (text(pos:pos) /= achar(13)) str = str // text(pos:pos)
                 pos = pos + 1
             end do
