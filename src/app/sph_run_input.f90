@@ -85,7 +85,8 @@ contains
             write(t_text, '(es10.3)') t_end
             write(n_text, '(i0)') size(out%output_times) - n_kept
             out%note = '&output output_times: ' // trim(n_text) // &
-                ' entries past t_end = ' // trim(adjustl(t_text)) // ' s skipped'
+                trim(merge(' entry  ', ' entries', size(out%output_times) - n_kept == 1)) // &
+                ' past t_end = ' // trim(adjustl(t_text)) // ' s skipped'
             out%output_times = pack(out%output_times, out%output_times <= t_end)
         end if
     end subroutine read_output_input

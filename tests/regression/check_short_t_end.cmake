@@ -9,7 +9,7 @@ execute_process(COMMAND ${MPIEXEC} ${NP_FLAG} ${NP} ${_extra} ${PROGRAM} ${INPUT
 if(NOT rc EQUAL 0)
     message(FATAL_ERROR "expected status 0, got ${rc}\n${out}\n${err}")
 endif()
-if(NOT out MATCHES "note: &output output_times: 1 entries past t_end = 1\\.000E-03 s skipped")
+if(NOT out MATCHES "note: &output output_times: 1 entry past t_end = 1\\.000E-03 s skipped")
     message(FATAL_ERROR "no note about the skipped output time:\n${out}")
 endif()
 file(GLOB _snaps "${WORKDIR}/output/poiseuille_*.h5")
