@@ -451,15 +451,18 @@ contains
         class(nml_group_t), intent(inout) :: self
         integer :: i, k
         character(len=64), allocatable :: names(:)
+        character(len=:), allocatable :: hint
         allocate(names(size(self%keys)))
         do k = 1, size(self%keys)
             names(k) = self%keys(k)%key
         end do
         do i = 1, size(self%items)
             if (self%items(i)%used) cycle
+            hint = suggestion(self%items(i)%key, names)
+            if (len(hint) == 0) hint = '.'
             call self%error(self%items(i)%key, 'unknown key (line ' // &
-                itoa(self%items(i)%line) // ')' // suggestion(self%items(i)%key, names) // &
-                '. Allowed keys in &' // self%name // ': ' // join(names, ', ', ''))
+                itoa(self%items(i)%line) // ')' // hint // &
+                ' Allowed keys in &' // self%name // ': ' // join(names, ', ', ''))
         end do
     end subroutine group_finish
 
