@@ -14,7 +14,8 @@
 module sph_particle_file
     use sph_kinds, only: wp, i4, i8
     use sph_config, only: config_t
-    use sph_mpi_env, only: mpi_env_t, global_max, global_sum, broadcast_text
+    use sph_mpi_env, only: mpi_env_t, global_max, global_sum, broadcast_text, agreed_status
+    use sph_logger, only: int_text
     use sph_particles, only: particles_t, particles_reserve, particles_clear, KIND_FLUID, &
         KIND_WALL
     use sph_physics, only: physics_t
@@ -68,7 +69,7 @@ contains
 
         dim = cfg%domain%dimension
         call h5_open_read(env, path, file, my_stat, message)
-        stat = agreed(env, my_stat)
+        stat = agreed_status(env, my_stat)
         if (stat /= 0) then
             errmsg = "cannot open the initial particle file '" // path // "' (&domain " // &
                 "initial_particles): not there or not HDF5"
@@ -79,7 +80,7 @@ contains
         ! the layout: the same on every rank, checked on every rank
         message = ''
         call check_layout(file, dim, n_rows, width, have, message)
-        stat = agreed(env, merge(1, 0, len(message) > 0))
+        stat = agreed_status(env, merge(1, 0, len(message) > 0))
         if (stat /= 0) then
             call h5_close(file)
             if (len(message) == 0) message = ' refused on another rank;'
@@ -101,7 +102,7 @@ contains
         p%n_owned = n
         p%n_ghost = 0
         p%n_total = n
-        if (agreed(env, my_stat) /= 0) then
+        if (agreed_status(env, my_stat) /= 0) then
             stat = 1
             errmsg = "closing the initial particle file '" // path // "' failed"
             return
@@ -109,8 +110,8 @@ contains
 
         call complete_and_check(env, cfg, phys, solids, have, offset, p, message)
         call find_duplicate_ids(env, p%id, n, n_duplicates, duplicate)
-        if (n_duplicates > 0) message = message // '; ' // text_of(n_duplicates) // &
-            ' ids given more than once (the smallest: ' // text_of(duplicate) // ')'
+        if (n_duplicates > 0) message = message // '; ' // int_text(n_duplicates) // &
+            ' ids given more than once (the smallest: ' // int_text(duplicate) // ')'
         stat = merge(1, 0, len(message) > 0)   ! the same on every rank (global counts)
         errmsg = ''
         if (stat /= 0) errmsg = "the initial particle file '" // path // "' is refused: " // &
@@ -139,8 +140,8 @@ contains
         if (h5_attribute_exists(file, 'dimension')) then
             call h5_read_attribute(file, 'dimension', value, status)
             if (status /= 0 .or. value /= dim) message = message // ' its root attribute ' // &
-                'dimension is ' // text_of(int(value, i8)) // ', &domain dimension is ' // &
-                text_of(int(dim, i8)) // ';'
+                'dimension is ' // int_text(int(value, i8)) // ', &domain dimension is ' // &
+                int_text(int(dim, i8)) // ';'
         end if
         n_rows = h5_dataset_rows(file, 'particles/position', width)
         have = .false.
@@ -158,9 +159,9 @@ contains
             if (rows /= n_rows .or. (w /= optional_widths(k) .and. .not. &
                     (optional_widths(k) == 3 .and. w == dim))) then
                 message = message // ' /particles/' // trim(optional_names(k)) // ' has ' // &
-                    text_of(rows) // ' rows of width ' // text_of(int(max(w, 1), i8)) // &
-                    ', expected ' // text_of(n_rows) // ' of width ' // &
-                    text_of(int(max(optional_widths(k), 1), i8)) // ';'
+                    int_text(rows) // ' rows of width ' // int_text(int(max(w, 1), i8)) // &
+                    ', expected ' // int_text(n_rows) // ' of width ' // &
+                    int_text(int(max(optional_widths(k), 1), i8)) // ';'
             else
                 have(k) = .true.
             end if
@@ -288,7 +289,7 @@ contains
             reporter = int(-global_max(env, int(merge(-env%rank, -huge(0), counts(k) > 0), i8)))
             text = trim(example(k))
             call broadcast_text(env, text, reporter)
-            message = message // '; ' // text_of(total) // ' ' // trim(problem_text(k)) // &
+            message = message // '; ' // int_text(total) // ' ' // trim(problem_text(k)) // &
                 ' (first: ' // text // ')'
         end do
 
@@ -303,18 +304,5 @@ contains
         end subroutine problem
     end subroutine complete_and_check
 
-    !> The same status on every rank: the largest.
-    integer function agreed(env, stat)
-        type(mpi_env_t), intent(in) :: env
-        integer, intent(in) :: stat
-        agreed = int(global_max(env, int(stat, i8)))
-    end function agreed
 
-    function text_of(value) result(text)
-        integer(i8), intent(in) :: value
-        character(len=:), allocatable :: text
-        character(len=24) :: buffer
-        write(buffer, '(i0)') value
-        text = trim(buffer)
-    end function text_of
 end module sph_particle_file

@@ -1,12 +1,12 @@
 !> Rank-0 logger with levels. Repeated warnings are counted under a key and summarised once,
 !> so a per-particle condition never floods the log.
 module sph_logger
-    use, intrinsic :: iso_fortran_env, only: output_unit, error_unit
+    use, intrinsic :: iso_fortran_env, only: output_unit, error_unit, int64
     implicit none
     private
     public :: VERBOSITY_QUIET, VERBOSITY_INFO, VERBOSITY_DEBUG
     public :: logger_init, log_info, log_debug, log_warn, log_warn_counted, log_warning_summary
-    public :: logger_is_root
+    public :: logger_is_root, int_text
 
     integer, parameter :: VERBOSITY_QUIET = 0, VERBOSITY_INFO = 1, VERBOSITY_DEBUG = 2
     integer, parameter :: max_keys = 64
@@ -81,4 +81,13 @@ contains
             end if
         end do
     end subroutine log_warning_summary
+
+    !> An integer as text without padding, for messages.
+    function int_text(value) result(text)
+        integer(int64), intent(in) :: value
+        character(len=:), allocatable :: text
+        character(len=24) :: buffer
+        write(buffer, '(i0)') value
+        text = trim(buffer)
+    end function int_text
 end module sph_logger

@@ -12,7 +12,8 @@
 !> optional stat/errmsg; without stat a failure stops through sph_errors.
 module sph_snapshot
     use sph_kinds, only: wp, i4, i8
-    use sph_mpi_env, only: mpi_env_t, global_max, broadcast_text
+    use sph_mpi_env, only: mpi_env_t, global_max, broadcast_text, agreed_status
+    use sph_logger, only: int_text
     use sph_errors, only: fatal_collective, fatal_abort
     use sph_particles, only: particles_t, particles_reserve, particles_clear, particles_visit, &
         field_list, &
@@ -118,14 +119,14 @@ contains
         stat = 0
         dir_end = index(path, '/', back=.true.)
         if (env%rank == 0 .and. dir_end > 1) call make_directories(path(1:dir_end - 1), stat)
-        stat = agreed(env, stat)
+        stat = agreed_status(env, stat)
         if (stat /= 0) then
             errmsg = "cannot create the output directory '" // path(1:max(dir_end - 1, 0)) // &
                 "' for '" // path // "'"
             return
         end if
         call h5_create(env, path // '.tmp', file, my_stat, errmsg)
-        stat = agreed(env, my_stat)
+        stat = agreed_status(env, my_stat)
         if (stat /= 0) then
             if (my_stat == 0) call fatal_abort('snapshot_begin', "'" // path // &
                 ".tmp' was created on some ranks only")
@@ -177,13 +178,13 @@ contains
         errmsg = ''
         call h5_write_attribute(file, 'write_complete', 1_i4)
         call h5_close(file, my_stat)
-        stat = agreed(env, my_stat)
+        stat = agreed_status(env, my_stat)
         if (stat /= 0) then
             errmsg = "closing '" // path // ".tmp' failed: the snapshot is not complete"
             return
         end if
         if (env%rank == 0) call rename_file(path // '.tmp', path, my_stat)
-        stat = agreed(env, my_stat)
+        stat = agreed_status(env, my_stat)
         if (stat /= 0) errmsg = "cannot rename '" // path // ".tmp' to '" // path // "'"
     end subroutine snapshot_end
 
@@ -249,7 +250,7 @@ contains
             dimension = dim4
             call h5_close(file)
         end if
-        stat = agreed(env, my_stat)
+        stat = agreed_status(env, my_stat)
         if (stat /= 0 .and. my_stat == 0) message = "'" // path // "' is refused on another rank"
     end subroutine header
 
@@ -274,7 +275,7 @@ contains
         character(len=64) :: numbers
 
         call open_checked(env, path, file, my_stat, message)
-        if (agreed(env, my_stat) /= 0) then
+        if (agreed_status(env, my_stat) /= 0) then
             if (my_stat == 0) call fatal_abort('read_particles_rows', "'" // path // &
                 "' was opened on some ranks only")
             call finish(1, message, 'read_particles_rows', stat)
@@ -289,7 +290,7 @@ contains
             write(numbers, '(i0,a,i0,a,i0)') first_row, ' + ', n_rows, ' > ', total
             message = "rows outside '" // path // "' (" // trim(numbers) // ")"
         end if
-        if (agreed(env, my_stat) /= 0) then
+        if (agreed_status(env, my_stat) /= 0) then
             call h5_close(file)
             if (my_stat == 0) message = "reading '" // path // "' failed on another rank"
             call finish(1, message, 'read_particles_rows', stat)
@@ -308,7 +309,7 @@ contains
         p%n_owned = n
         p%n_ghost = 0
         p%n_total = n
-        my_stat = agreed(env, my_stat)
+        my_stat = agreed_status(env, my_stat)
         message = ''
         if (my_stat /= 0) message = "closing '" // path // "' after reading failed"
         call finish(my_stat, message, 'read_particles_rows', stat)
@@ -345,9 +346,9 @@ contains
                      version /= snapshot_format_version) then
                 stat = 1
                 message = "'" // path // "' has format '" // format // &
-                    "' version " // text_of(int(version, i8)) // ", not '" // &
+                    "' version " // int_text(int(version, i8)) // ", not '" // &
                     snapshot_format_name // "' version " // &
-                    text_of(int(snapshot_format_version, i8)) // ": refused"
+                    int_text(int(snapshot_format_version, i8)) // ": refused"
             end if
         end if
         if (stat /= 0) call h5_close(file)
@@ -541,12 +542,6 @@ contains
         end if
     end subroutine io_int4
 
-    !> The same status on every rank: the largest.
-    integer function agreed(env, stat)
-        type(mpi_env_t), intent(in) :: env
-        integer, intent(in) :: stat
-        agreed = int(global_max(env, int(stat, i8)))
-    end function agreed
 
     !> Hand the (agreed) status to the caller, or stop collectively when it did not ask. The
     !> public routine sets errmsg itself: gfortran 12 loses the length of an optional
@@ -562,13 +557,6 @@ contains
         end if
     end subroutine finish
 
-    function text_of(value) result(text)
-        integer(i8), intent(in) :: value
-        character(len=:), allocatable :: text
-        character(len=24) :: buffer
-        write(buffer, '(i0)') value
-        text = trim(buffer)
-    end function text_of
 
     !> Now in UTC, ISO 8601 (2026-05-09T07:29:33Z): the local time of date_and_time less
     !> its UTC offset, through days since 1970-01-01 (H. Hinnant's civil-date algorithms).

@@ -8,7 +8,7 @@ module sph_mpi_env
     private
     public :: mpi_env_t, mpi_env_init_world, mpi_env_from_comm, mpi_env_free, mpi_env_split
     public :: global_sum, global_max, global_min, broadcast_text, exclusive_scan_i8
-    public :: mpi_wp, mpi_i8
+    public :: mpi_wp, mpi_i8, agreed_status
 
     type(MPI_Datatype), parameter :: mpi_wp = MPI_DOUBLE_PRECISION  !< matches sph_kinds%wp
     type(MPI_Datatype), parameter :: mpi_i8 = MPI_INTEGER8          !< matches sph_kinds%i8
@@ -195,4 +195,11 @@ contains
             call check_mpi(ierr, 'broadcast_text')
         end if
     end subroutine broadcast_text
+
+    !> The same status on every rank: the largest (collective).
+    integer function agreed_status(env, stat)
+        type(mpi_env_t), intent(in) :: env
+        integer, intent(in) :: stat
+        agreed_status = int(global_max(env, int(stat, i8)))
+    end function agreed_status
 end module sph_mpi_env
