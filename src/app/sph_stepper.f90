@@ -12,7 +12,8 @@ module sph_stepper
     use sph_particles, only: particles_t, particles_init, particles_gather, KIND_FLUID, &
         HALO_MOVE, HALO_DENSITY, HALO_STRAIN, pack_widths, ALL_FIELDS
     use sph_physics, only: physics_t, physics_from_config, DENSITY_SUMMATION, &
-        VISCOSITY_STRAIN_RATE, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR, SHIFTING_NONE
+        VISCOSITY_STRAIN_RATE, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR, SHIFTING_NONE, &
+        WALLS_MORRIS, WALL_PRESSURE_EXTRAPOLATED
     use sph_kernel, only: kernel_name
     use sph_walls, only: solids_from_config, build_mirrors, wall_layers
     use sph_solids, only: solids_t
@@ -21,7 +22,7 @@ module sph_stepper
     use sph_halo, only: halo_t, halo_setup, halo_build, halo_refresh
     use sph_cell_list, only: neighbour_list_t, build_neighbour_list, cell_sort_order
     use sph_rates, only: update_pressure, compute_summation_density, compute_strain_rate, &
-        compute_rates, local_max_speed, local_max_acceleration
+        compute_rates, extrapolate_wall_density, local_max_speed, local_max_acceleration
     use sph_shifting, only: shifting_diffusion, shift_particles
     use sph_timestep, only: timestep_limits_t, timestep_limits
     use sph_integrator, only: save_step_start, advance
@@ -269,6 +270,12 @@ contains
             call build_mirrors(sim%phys, sim%solids, sim%p)
         end if
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+        if (sim%phys%walls == WALLS_MORRIS .and. &
+            sim%phys%wall_pressure == WALL_PRESSURE_EXTRAPOLATED) then
+            call extrapolate_wall_density(sim%phys, sim%p, sim%nl)
+            call halo_refresh(sim%halo, env, sim%p, HALO_DENSITY)
+            call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+        end if
         if (sim%phys%viscosity == VISCOSITY_STRAIN_RATE) then
             call compute_strain_rate(sim%phys, sim%p, sim%nl, sim%solids)
             call halo_refresh(sim%halo, env, sim%p, HALO_STRAIN)

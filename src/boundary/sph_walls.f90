@@ -186,14 +186,26 @@ contains
 
     !> Is the point x (a lattice site) inside a solid, and if so which (the one it lies
     !> deepest inside; ties, as on a corner diagonal, go to the lower number), the normal into
-    !> the fluid and the distance behind the surface. dx sets the tie tolerance.
+    !> the fluid and the distance behind the surface. dx sets the tie tolerance; a site on a
+    !> surface (within 1e-6 dx) belongs to the solid.
     pure subroutine wall_site(solids, x, dx, is_site, solid, normal, distance)
         type(solids_t), intent(in) :: solids
         real(wp), intent(in) :: x(3), dx
         logical, intent(out) :: is_site
         integer, intent(out) :: solid
         real(wp), intent(out) :: normal(3), distance
+        integer :: k
         solid = deepest_solid(solids, x, 1.0e-6_wp * dx)
+        ! a site on a surface belongs to the solid: as a fluid particle it would sit at zero
+        ! distance from the wall and enter it at its first move (a 3-4-5 site on a circle)
+        if (solid == 0 .and. allocated(solids%list)) then
+            do k = 1, size(solids%list)
+                if (solid_distance(solids%list(k), x) <= 1.0e-6_wp * dx) then
+                    solid = k
+                    exit
+                end if
+            end do
+        end if
         is_site = solid > 0
         normal = 0.0_wp
         distance = 0.0_wp

@@ -24,7 +24,7 @@ module sph_domain_input
         real(wp) :: dx
         character(len=path_len) :: initial_particles   !< '' = the lattice
     contains
-        procedure :: is_wall, is_periodic
+        procedure :: is_wall, is_periodic, corner_velocity_jump
     end type domain_input_t
 
     !> The channel an analytic reference describes (find_analytic_channel).
@@ -41,6 +41,21 @@ contains
         integer, intent(in) :: face
         is_wall = trim(self%boundary(face)) == 'wall'
     end function is_wall
+
+    !> The largest velocity difference between two walls that meet at a corner (faces on
+    !> different axes, as a lid and a side wall of a cavity); 0 without such a corner.
+    pure real(wp) function corner_velocity_jump(self) result(jump)
+        class(domain_input_t), intent(in) :: self
+        integer :: f, g
+        jump = 0.0_wp
+        do f = 1, 2 * self%dimension
+            do g = f + 1, 2 * self%dimension
+                if ((f + 1) / 2 == (g + 1) / 2) cycle
+                if (self%is_wall(f) .and. self%is_wall(g)) jump = max(jump, &
+                    norm2(self%wall_velocity(:, f) - self%wall_velocity(:, g)))
+            end do
+        end do
+    end function corner_velocity_jump
 
     logical pure function is_periodic(self, axis)
         class(domain_input_t), intent(in) :: self

@@ -10,7 +10,7 @@ module sph_initial
     use sph_particles, only: particles_t, particles_reserve, KIND_FLUID, KIND_WALL
     use sph_physics, only: physics_t, WALLS_MORRIS, WALLS_REPULSIVE, WALLS_REPULSIVE_MIRROR
     use sph_walls, only: wall_layers, wall_lattice_ranges, wall_site, body_surface_sites
-    use sph_solids, only: solids_t, solid_velocity, deepest_solid
+    use sph_solids, only: solids_t, solid_velocity
     use sph_domain, only: domain_t, domain_owner
     use sph_eos, only: eos_pressure
     implicit none
@@ -45,8 +45,10 @@ contains
                     idx = [i, j, k]
                     xi = lattice_position(idx)
                     if (domain_owner(domain, xi) /= domain%rank) cycle
-                    ! the lattice minus the solids (bodies inside the box)
-                    if (deepest_solid(solids, xi, 0.0_wp) > 0) cycle
+                    ! the lattice minus the solids (bodies inside the box, their surfaces
+                    ! included): the same rule that makes the wall sites
+                    call wall_site(solids, xi, cfg%domain%dx, site, solid, normal, distance)
+                    if (site) cycle
                     linear = 1 + (i - 1) + int(n_inside(1), i8) * ((j - 1) + int(n_inside(2), &
                         i8) * (k - 1))
                     call add_particle(xi, linear, KIND_FLUID, [0.0_wp, 0.0_wp, 0.0_wp], 0.0_wp, &
@@ -103,7 +105,8 @@ contains
             p%x(:, n) = x
             p%v(:, n) = velocity
             p%rho(n) = cfg%fluid%rho0
-            p%p(n) = eos_pressure(phys%eos, cfg%fluid%rho0, phys%rho0, phys%c, phys%gamma)
+            p%p(n) = eos_pressure(phys%eos, cfg%fluid%rho0, phys%rho0, phys%c, phys%gamma) + &
+                phys%background_pressure
             p%m(n) = mass
             p%h(n) = phys%kernel%h
             p%e(n) = 0.0_wp

@@ -276,7 +276,8 @@ contains
             end if
             if (.not. (p%m(i) > 0.0_wp .and. p%rho(i) > 0.0_wp)) call problem(6)
             if (p%id(i) <= 0) call problem(7)
-            p%p(i) = eos_pressure(phys%eos, p%rho(i), phys%rho0, phys%c, phys%gamma)
+            p%p(i) = eos_pressure(phys%eos, p%rho(i), phys%rho0, phys%c, phys%gamma) + &
+                phys%background_pressure
             p%h(i) = phys%kernel%h
             p%x_old(:, i) = p%x(:, i)
             p%v_old(:, i) = p%v(:, i)

@@ -12,7 +12,7 @@ module sph_config
     use sph_domain_input, only: domain_input_t, read_domain_input, check_analytic_channel, &
         n_faces, face_names
     use sph_physics_input, only: fluid_input_t, numerics_input_t, read_fluid_input, &
-        read_numerics_input
+        read_numerics_input, check_moving_corners
     use sph_parallel_input, only: parallel_input_t, read_parallel_input
     use sph_restart_input, only: restart_input_t, read_restart_input
     use sph_health_input, only: health_input_t, read_health_input
@@ -137,6 +137,8 @@ contains
         call read_body_inputs(bodies, cfg%domain, cfg%bodies)
         if (sum(grp%n_errors) == 0) call check_body_wall_model(bodies, cfg%bodies, &
             cfg%numerics%wall_model)
+        if (sum(grp%n_errors) == 0) call check_moving_corners(grp(5), grp(4), cfg%domain, &
+            cfg%numerics, cfg%fluid)
         if (sum(grp%n_errors) == 0) call check_analytic_channel(grp(1), cfg%run%analytic, &
             cfg%domain, cfg%fluid%body_force)
     end subroutine read_groups

@@ -4,6 +4,7 @@ module sph_eos
     implicit none
     private
     public :: EOS_MORRIS, EOS_MORRIS_RELATIVE, EOS_TAIT, eos_id_from_name, eos_pressure
+    public :: eos_density
     public :: morris_sound_speed
 
     integer, parameter :: EOS_MORRIS = 1           !< p = c^2 rho (Morris et al. 1997)
@@ -34,6 +35,22 @@ contains
             eos_pressure = c * c * rho
         end select
     end function eos_pressure
+
+    !> The density of a pressure: the inverse of eos_pressure. Tait densities are kept
+    !> positive (a tension beyond -c^2 rho0 / gamma has no Tait density).
+    pure elemental real(wp) function eos_density(id, p, rho0, c, gamma)
+        integer, intent(in) :: id
+        real(wp), intent(in) :: p, rho0, c, gamma
+        select case (id)
+        case (EOS_MORRIS_RELATIVE)
+            eos_density = rho0 + p / (c * c)
+        case (EOS_TAIT)
+            eos_density = rho0 * max(1.0e-3_wp, 1.0_wp + gamma * p / (c * c * rho0)) &
+                **(1.0_wp / gamma)
+        case default
+            eos_density = p / (c * c)
+        end select
+    end function eos_density
 
     !> Morris et al. (1997): keep density variations near delta by
     !> c^2 >= max(V^2, nu V / L, F L) / delta.

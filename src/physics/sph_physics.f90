@@ -11,12 +11,14 @@ module sph_physics
     public :: DENSITY_CONTINUITY, DENSITY_SUMMATION, VISCOSITY_MORRIS, VISCOSITY_STRAIN_RATE
     public :: WALLS_MORRIS, WALLS_REPULSIVE, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR
     public :: SHIFTING_NONE, SHIFTING_LIND
+    public :: WALL_PRESSURE_CONTINUITY, WALL_PRESSURE_EXTRAPOLATED
 
     integer, parameter :: DENSITY_CONTINUITY = 1, DENSITY_SUMMATION = 2
     integer, parameter :: VISCOSITY_MORRIS = 1, VISCOSITY_STRAIN_RATE = 2
     integer, parameter :: WALLS_MORRIS = 1, WALLS_REPULSIVE = 2, WALLS_MIRROR = 3
     integer, parameter :: WALLS_REPULSIVE_MIRROR = 4
     integer, parameter :: SHIFTING_NONE = 0, SHIFTING_LIND = 1
+    integer, parameter :: WALL_PRESSURE_CONTINUITY = 1, WALL_PRESSURE_EXTRAPOLATED = 2
 
     type :: physics_t
         integer :: dim = 2
@@ -28,6 +30,7 @@ module sph_physics
         integer :: eos = 1
         real(wp) :: c = 1.0_wp             !< sound speed used
         real(wp) :: gamma = 7.0_wp
+        real(wp) :: background_pressure = 0.0_wp   !< added to the equation of state's
         integer :: density_method = DENSITY_CONTINUITY
         integer :: viscosity = VISCOSITY_MORRIS
         integer :: walls = WALLS_MORRIS
@@ -40,6 +43,8 @@ module sph_physics
         integer :: shifting = SHIFTING_NONE
         real(wp) :: shifting_coefficient = 2.0_wp  !< A of D = A h |v|max dt (sph_shifting)
         real(wp) :: shifting_limit = 0.1_wp        !< largest shift per step / dx
+        !> Morris wall particles' density: continuity, or from the fluid's pressure
+        integer :: wall_pressure = WALL_PRESSURE_CONTINUITY
     end type physics_t
 
 contains
@@ -50,7 +55,7 @@ contains
         type(physics_t), intent(out) :: phys
         integer, intent(out) :: stat
         character(len=:), allocatable, intent(out) :: errmsg
-        real(wp) :: h, length, velocity, force
+        real(wp) :: h, length, velocity, force, jump
         integer :: axis, f
 
         stat = 0
@@ -67,6 +72,7 @@ contains
         phys%body_force(1:cfg%domain%dimension) = cfg%fluid%body_force(1:cfg%domain%dimension)
         phys%eos = eos_id_from_name(cfg%fluid%eos)
         phys%gamma = cfg%fluid%tait_gamma
+        phys%background_pressure = cfg%fluid%background_pressure
         select case (trim(cfg%numerics%density_method))
         case ('summation'); phys%density_method = DENSITY_SUMMATION
         case default; phys%density_method = DENSITY_CONTINUITY
@@ -118,6 +124,12 @@ contains
         else
             phys%c = morris_sound_speed(velocity, cfg%fluid%nu, length, force, &
                 cfg%fluid%density_variation)
+            ! where walls of different velocities meet at a corner (a lid), the velocity
+            ! jumps by the difference within one smoothing length: the viscous stress there
+            ! scales with nu dV / h, not nu V / L, and the pressure must hold it
+            jump = cfg%domain%corner_velocity_jump()
+            if (jump > 0.0_wp) phys%c = max(phys%c, morris_sound_speed(jump, cfg%fluid%nu, &
+                phys%kernel%h, 0.0_wp, cfg%fluid%density_variation))
             if (.not. (phys%c > 0.0_wp)) then
                 stat = 1
                 errmsg = '&fluid sound_speed = 0 asks for the automatic (Morris) sound speed, ' // &
@@ -137,6 +149,9 @@ contains
         if (trim(cfg%numerics%shifting) == 'lind') phys%shifting = SHIFTING_LIND
         phys%shifting_coefficient = cfg%numerics%shifting_coefficient
         phys%shifting_limit = cfg%numerics%shifting_limit
+        phys%wall_pressure = WALL_PRESSURE_CONTINUITY
+        if (trim(cfg%numerics%wall_pressure) == 'extrapolated') &
+            phys%wall_pressure = WALL_PRESSURE_EXTRAPOLATED
     end subroutine physics_from_config
 
     !> Morris' viscous term is exact for a quadratic velocity field only if the discrete second

@@ -4,9 +4,11 @@
 module sph_physics_input
     use sph_kinds, only: wp
     use sph_namelist, only: nml_group_t
+    use sph_domain_input, only: domain_input_t
     implicit none
     private
     public :: fluid_input_t, numerics_input_t, read_fluid_input, read_numerics_input
+    public :: check_moving_corners
 
     integer, parameter :: name_len = 32
 
@@ -14,6 +16,7 @@ module sph_physics_input
         real(wp) :: rho0, nu, body_force(3)
         character(len=name_len) :: eos
         real(wp) :: sound_speed           !< 0 = Morris' criterion
+        real(wp) :: background_pressure   !< added to the equation of state's pressure
         real(wp) :: tait_gamma, density_variation
         real(wp) :: velocity_scale        !< 0 = estimated from walls and body force
         real(wp) :: length_scale          !< 0 = smallest wall-to-wall distance or box size
@@ -32,6 +35,7 @@ module sph_physics_input
         character(len=name_len) :: shifting
         real(wp) :: shifting_coefficient  !< A of Lind's D = A h |v|max dt
         real(wp) :: shifting_limit        !< largest shift per step, in units of dx
+        character(len=name_len) :: wall_pressure  !< 'continuity' or 'extrapolated'
     end type numerics_input_t
 
 contains
@@ -50,6 +54,8 @@ contains
             doc='equation of state')
         call grp%get_real('sound_speed', fl%sound_speed, 0.0_wp, min=0.0_wp, unit='m/s', &
             doc="0 = Morris' criterion")
+        call grp%get_real('background_pressure', fl%background_pressure, 0.0_wp, min=0.0_wp, &
+            unit='Pa', doc="added to the equation of state's pressure")
         call grp%get_real('tait_gamma', fl%tait_gamma, 7.0_wp, min=1.0_wp, &
             doc='exponent of the Tait equation')
         call grp%get_real('density_variation', fl%density_variation, 0.01_wp, &
@@ -105,6 +111,10 @@ contains
             min_exclusive=0.0_wp, doc='A of the shifting coefficient D = A h |v|max dt')
         call grp%get_real('shifting_limit', num%shifting_limit, 0.1_wp, min_exclusive=0.0_wp, &
             max=0.5_wp, doc='largest shift of a particle in one step, in units of dx')
+        call grp%get_string('wall_pressure', num%wall_pressure, 'continuity', &
+            choices=[character(len=12) :: 'continuity', 'extrapolated'], &
+            doc="Morris wall particles' density: integrated like the fluid's, or " // &
+            "extrapolated from the fluid's pressure each stage (Adami et al. 2012)")
         if (num%repulsive_n1 <= num%repulsive_n2) &
             call grp%error('repulsive_n1, repulsive_n2', 'need n1 > n2 >= 1')
         if (trim(num%viscosity_model) == 'strain_rate' .and. &
@@ -114,5 +124,36 @@ contains
         if (trim(num%shifting) /= 'none' .and. trim(num%wall_model) /= 'morris') &
             call grp%error('shifting', "'lind' works with wall_model = 'morris' only (the " // &
                 "wall particles must fill the support to complete the concentration field)")
+        if (trim(num%wall_pressure) /= 'continuity' .and. trim(num%wall_model) /= 'morris') &
+            call grp%error('wall_pressure', "'extrapolated' works with wall_model = " // &
+                "'morris' only (the other models have no wall particles in the sums)")
     end subroutine read_numerics_input
+
+    !> Where walls of different velocities meet at a corner (a lid-driven cavity), the lid's
+    !> velocity jump drags fluid into the downstream corner at every step. Only a density
+    !> from the particles' positions (summation) stops a corner particle from being
+    !> compressed without bound (an integrated density accumulates the jump), only wall
+    !> particles that fill the corner (Morris) hold it there, and the fluid needs a
+    !> background pressure, or the suction at the upstream corner pulls particles into the
+    !> walls. Other choices are refused here, naming the key.
+    subroutine check_moving_corners(num_grp, fluid_grp, dom, num, fl)
+        type(nml_group_t), intent(inout) :: num_grp, fluid_grp
+        type(domain_input_t), intent(in) :: dom
+        type(numerics_input_t), intent(in) :: num
+        type(fluid_input_t), intent(in) :: fl
+        character(len=*), parameter :: where = ' where walls of different velocities ' // &
+            'meet at a corner (&domain wall_velocity)'
+        if (.not. (dom%corner_velocity_jump() > 0.0_wp)) return
+        if (trim(num%wall_model) /= 'morris') call num_grp%error('wall_model', &
+            "'" // trim(num%wall_model) // "' cannot hold the fluid" // where // &
+            "; use 'morris' (wall particles that fill the corner)")
+        if (trim(num%density_method) /= 'summation') call num_grp%error('density_method', &
+            "'" // trim(num%density_method) // "' compresses the corner particles " // &
+            'without bound' // where // "; use 'summation'")
+        if (trim(fl%eos) /= 'morris' .and. .not. (fl%background_pressure > 0.0_wp)) &
+            call fluid_grp%error('eos, background_pressure', "'" // trim(fl%eos) // &
+            "' without a background pressure lets the fluid's tension pull particles " // &
+            'into the walls' // where // "; use eos = 'morris' (p = c^2 rho) or give " // &
+            'background_pressure > 0 (a few rho0 U^2)')
+    end subroutine check_moving_corners
 end module sph_physics_input

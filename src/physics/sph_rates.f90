@@ -21,12 +21,12 @@ module sph_rates
     use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL
     use sph_cell_list, only: neighbour_list_t
     use sph_physics, only: physics_t, VISCOSITY_MORRIS, VISCOSITY_STRAIN_RATE, WALLS_MORRIS, &
-        WALLS_REPULSIVE, WALLS_REPULSIVE_MIRROR
-    use sph_eos, only: eos_pressure
+        WALLS_REPULSIVE, WALLS_REPULSIVE_MIRROR, WALL_PRESSURE_CONTINUITY
+    use sph_eos, only: eos_pressure, eos_density
     use sph_solids, only: solids_t, solid_distance, solid_normal, SOLID_PLANE
     implicit none
     private
-    public :: update_pressure, compute_summation_density, compute_strain_rate, compute_rates
+    public :: update_pressure, extrapolate_wall_density, compute_summation_density, compute_strain_rate, compute_rates
     public :: local_max_speed, local_max_acceleration, morris_beta
 
     !> strain(6) components: xx, yy, zz, xy, xz, yz
@@ -34,13 +34,53 @@ module sph_rates
 
 contains
 
-    !> Pressure from density by the equation of state, for particles first..last.
+    !> Pressure from density by the equation of state (plus the background pressure), for
+    !> particles first..last.
     subroutine update_pressure(phys, p, first, last)
         type(physics_t), intent(in) :: phys
         type(particles_t), intent(inout) :: p
         integer, intent(in) :: first, last
-        p%p(first:last) = eos_pressure(phys%eos, p%rho(first:last), phys%rho0, phys%c, phys%gamma)
+        p%p(first:last) = eos_pressure(phys%eos, p%rho(first:last), phys%rho0, phys%c, &
+            phys%gamma) + phys%background_pressure
     end subroutine update_pressure
+
+    !> Density of owned Morris wall particles from the fluid around them (Adami, Hu & Adams
+    !> 2012, eq. 27): the wall pressure is the kernel-weighted fluid pressure plus the
+    !> hydrostatic part of the body force F (walls do not accelerate),
+    !>   p_w = (sum_f p_f W_wf + F . sum_f rho_f (x_w - x_f) W_wf) / sum_f W_wf,
+    !> and the density is the equation of state's for that pressure. The wall then pushes
+    !> back exactly as hard as the fluid next to it presses, wherever walls of different
+    !> velocities meet, instead of carrying a density of its own that the fluid can squeeze
+    !> into a corner. A wall particle without fluid in reach takes the rest density.
+    !> The fluid pressures must be current (update_pressure) on entry.
+    subroutine extrapolate_wall_density(phys, p, nl)
+        type(physics_t), intent(in) :: phys
+        type(particles_t), intent(inout) :: p
+        type(neighbour_list_t), intent(in) :: nl
+        integer :: i, k, j
+        real(wp) :: d(3), w, sum_w, sum_p, support2
+        support2 = phys%kernel%support**2
+        do i = 1, p%n_owned
+            if (p%kind(i) /= KIND_WALL) cycle
+            sum_w = 0.0_wp
+            sum_p = 0.0_wp
+            do k = nl%start(i), nl%start(i + 1) - 1
+                j = nl%index(k)
+                if (p%kind(j) /= KIND_FLUID) cycle
+                d = p%x(:, i) - p%x(:, j)
+                if (dot_product(d, d) >= support2) cycle
+                w = phys%kernel%w(norm2(d))
+                sum_w = sum_w + w
+                sum_p = sum_p + (p%p(j) + p%rho(j) * dot_product(phys%body_force, d)) * w
+            end do
+            if (sum_w > 0.0_wp) then
+                p%rho(i) = eos_density(phys%eos, sum_p / sum_w - phys%background_pressure, &
+                    phys%rho0, phys%c, phys%gamma)
+            else
+                p%rho(i) = phys%rho0
+            end if
+        end do
+    end subroutine extrapolate_wall_density
 
     !> Type-1 boundary particles only repel; they take no part in the SPH sums.
     pure logical function repulsive_only(phys, kind_j)
@@ -182,7 +222,8 @@ contains
             p%dedt(i) = 0.0_wp
             select case (p%kind(i))
             case (KIND_WALL)
-                if (phys%walls == WALLS_MORRIS) call wall_density_rate(i)
+                if (phys%walls == WALLS_MORRIS .and. &
+                    phys%wall_pressure == WALL_PRESSURE_CONTINUITY) call wall_density_rate(i)
                 cycle
             case (KIND_FLUID)
             case default
