@@ -1,0 +1,129 @@
+#!/usr/bin/env python3
+"""Drag on a body in a periodic lattice of bodies (Morris, Fox & Zhu 1997, sec. 4.3) against
+the body force on the fluid, and its convergence with resolution.
+
+    scripts/body_drag.py OUTPUT_DIR [OUTPUT_DIR ...] [--case cylinder] [--body cylinder]
+                         [--max-imbalance 1.0]
+
+For each run: the force on the body along the body force (last row of
+<case>_forces.csv, averaged over the last `--average` rows to smooth the pressure noise), the
+body force on the fluid, rho0 F times the fluid area (volume in 3D) of the box without the
+body, and their ratio in percent. With several runs (coarse to fine) the changes of the drag
+between successive resolutions and their ratios. Exits 1 when an imbalance exceeds
+--max-imbalance percent, or when a change is not at most half the previous one with
+--require-convergence.
+"""
+import argparse
+import csv
+import glob
+import math
+import os
+import re
+import sys
+
+import h5py
+import numpy as np
+
+
+def input_text(output_dir, case):
+    files = sorted(glob.glob(os.path.join(output_dir, f'{case}_[0-9]*.h5')))
+    if not files:
+        raise SystemExit(f'body_drag: no snapshot {case}_*.h5 in {output_dir}')
+    with h5py.File(files[-1], 'r') as f:
+        text = f.attrs['input']
+    return text.decode() if isinstance(text, bytes) else text
+
+
+def values(text, key, group=None):
+    if group:
+        m = re.search(r'^&' + group + r'\b(.*?)^/', text, re.M | re.S)
+        if not m:
+            raise SystemExit(f'body_drag: no &{group} in the stored input')
+        text = m.group(1)
+    m = re.search(r'^\s*' + key + r'\s*=\s*(.*?)(?=^\s*\w+\s*=|^/|\Z)', text, re.M | re.S)
+    if not m:
+        raise SystemExit(f"body_drag: the stored input has no '{key}'")
+    return m.group(1)
+
+
+def numbers(s):
+    return [float(v) for v in re.findall(r'[-+]?\d+\.?\d*(?:[eE][-+]?\d+)?', s)]
+
+
+def body_measure(text, name, dim, extent):
+    """Area (2D) or volume (3D) of the named body from its &body group; a 3D cylinder runs
+    through the box along its axis (extent: the box's side lengths)."""
+    for m in re.finditer(r'^&body\b(.*?)^/', text, re.M | re.S):
+        group = '&body\n' + m.group(1) + '/\n'
+        if re.search(r"name\s*=\s*'" + re.escape(name) + "'", group):
+            shape = re.search(r"shape\s*=\s*'(\w+)'", group).group(1)
+            if shape in ('circle', 'sphere', 'cylinder'):
+                r = numbers(values(group, 'radius'))[0]
+                if shape == 'sphere':
+                    return 4.0 / 3.0 * math.pi * r**3
+                if shape == 'cylinder' and dim == 3:
+                    axis = re.search(r"axis\s*=\s*'(\w)'", group)
+                    return math.pi * r**2 * extent['xyz'.index(axis.group(1) if axis else 'z')]
+                return math.pi * r**2
+            lo = np.array(numbers(values(group, 'lo'))[:dim])
+            hi = np.array(numbers(values(group, 'hi'))[:dim])
+            return float(np.prod(hi - lo))
+    raise SystemExit(f"body_drag: no &body named '{name}' in the stored input")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    ap.add_argument('output_dirs', nargs='+')
+    ap.add_argument('--case', default='cylinder')
+    ap.add_argument('--body', default='cylinder')
+    ap.add_argument('--average', type=int, default=1, help='rows averaged at the end')
+    ap.add_argument('--max-imbalance', type=float, default=None, help='percent')
+    ap.add_argument('--require-convergence', action='store_true')
+    args = ap.parse_args()
+
+    drags, failed = [], False
+    for out in args.output_dirs:
+        text = input_text(out, args.case)
+        dim = int(numbers(values(text, 'dimension'))[0])
+        lo = np.array(numbers(values(text, 'box_lo'))[:dim])
+        hi = np.array(numbers(values(text, 'box_hi'))[:dim])
+        dx = numbers(values(text, 'dx', 'domain'))[0]
+        rho0 = numbers(values(text, 'rho0'))[0]
+        force = np.array(numbers(values(text, 'body_force'))[:dim])
+        axis = int(np.argmax(np.abs(force)))
+        fluid = float(np.prod(hi - lo)) - body_measure(text, args.body, dim, hi - lo)
+        rows = []
+        with open(os.path.join(out, f'{args.case}_forces.csv')) as f:
+            for row in csv.DictReader(f):
+                if row['body'].strip() == args.body:
+                    rows.append(row)
+        if not rows:
+            raise SystemExit(f"body_drag: no rows for '{args.body}' in {out}")
+        last = rows[-args.average:]
+        key = 'F' + 'xyz'[axis]
+        drag = float(np.mean([float(r[key]) for r in last]))
+        expected = rho0 * force[axis] * fluid
+        imbalance = 100.0 * (drag - expected) / expected
+        drags.append(drag)
+        print(f'{out}: dx = {dx:g} m (L/{(hi[0] - lo[0]) / dx:.0f}), t = '
+              f'{float(last[-1]["time"]):g} s, drag {drag:.6e}, rho0 F A_fluid '
+              f'{expected:.6e} ({"N/m" if dim == 2 else "N"}), imbalance {imbalance:+.3f} %')
+        if args.max_imbalance is not None and abs(imbalance) > args.max_imbalance:
+            failed = True
+    for k in range(1, len(drags)):
+        change = drags[k] - drags[k - 1]
+        line = f'change {k}: {change:+.4e} ({100 * change / drags[k]:+.3f} %)'
+        if k >= 2:
+            ratio = abs(change) / abs(drags[k - 1] - drags[k - 2])
+            line += f', ratio to the previous change {ratio:.3f}'
+            if args.require_convergence and ratio > 0.5:
+                failed = True
+        print(line)
+    if failed:
+        print('body_drag: a threshold was exceeded', file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
