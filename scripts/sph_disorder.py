@@ -1,0 +1,143 @@
+#!/usr/bin/env python3
+"""Disorder statistics of the fluid particles of one or two sphremesh snapshots.
+
+    .venv/bin/python scripts/sph_disorder.py SNAP1.h5 [SNAP2.h5]
+
+For the fluid particles (kind 0) of each file: their count, the mean and the coefficient of
+variation (std / mean) of the nearest-neighbour distance, the minimum pair distance (the
+smallest nearest-neighbour distance) and the density spread (min, max, std / mean). With two
+files (say before and after a remesh) also the ratios second / first of the count, the mean
+nearest-neighbour distance and its coefficient of variation: a refinement in 2D should show
+a count ratio of 4 and a mean ratio of 1/2, a coarsening the inverse, with a CoV ratio near 1
+if the disorder was kept.
+
+Distances honour the periodic box: the box is the run's &domain box_lo .. box_hi, and an axis
+is periodic when its lower face has boundary = 'periodic' (the input text stored in every
+file, as sph_snapshot.geometry reads it); other axes are open. Only the fluid particles are
+measured (wall and virtual particles are left out). Needs numpy, scipy and h5py
+(scripts/install-deps puts them in .venv). As a module, disorder(path) returns the figures
+as a dict.
+"""
+import argparse
+import os
+import sys
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from sph_snapshot import SnapshotError, geometry, load, namelist  # noqa: E402
+
+try:
+    from scipy.spatial import cKDTree
+except ImportError:  # pragma: no cover - a message, not a traceback
+    sys.exit("sph_disorder: scipy is missing; run scripts/install-deps and use .venv/bin/python")
+
+
+def periodic_axes(snap, dim):
+    """Which of the first dim axes are periodic, from the input's &domain boundary list
+    (xlo, xhi, ylo, yhi, zlo, zhi); all open if the input cannot be read."""
+    try:
+        faces = namelist(snap)["domain"]["boundary"]
+        if isinstance(faces, str):
+            faces = [faces]
+        return [str(faces[2 * a]).strip().lower() == "periodic" for a in range(dim)]
+    except Exception:  # no or odd input text: measure as an open set
+        return [False] * dim
+
+
+def nearest_distances(points, lo, hi, periodic):
+    """Nearest-neighbour distance of every point (N x dim), minimum image along the periodic
+    axes of the box [lo, hi)."""
+    if len(points) < 2:
+        return np.zeros(0)
+    if not any(periodic):
+        tree = cKDTree(points)
+    else:
+        shifted = points - lo
+        span = np.ptp(points, axis=0)
+        size = np.empty(len(lo))
+        for a, wrap in enumerate(periodic):
+            if wrap:
+                size[a] = hi[a] - lo[a]
+                shifted[:, a] = np.mod(shifted[:, a], size[a])
+                # mod may round a value just below the length up to it
+                shifted[shifted[:, a] >= size[a], a] = 0.0
+            else:
+                # an open axis inside a period longer than twice the extent: no pair
+                # is ever nearer through the wrap than directly
+                shifted[:, a] = points[:, a] - points[:, a].min()
+                size[a] = 3.0 * span[a] + 1.0
+        tree = cKDTree(shifted, boxsize=size)
+        points = shifted
+    dist, _ = tree.query(points, k=2)
+    return dist[:, 1]
+
+
+def disorder(path):
+    """The figures of one snapshot as a dict: count, mean_nn, cov_nn, min_pair, rho_min,
+    rho_max, rho_spread (std / mean of the density), dimension, periodic (per axis)."""
+    snap = load(path, check_format=False)
+    geo = geometry(snap)
+    dim = geo["dimension"]
+    fluid = snap["kind"] == 0
+    points = np.asarray(snap["position"], dtype=float)[fluid][:, :dim]
+    rho = np.asarray(snap["density"], dtype=float)[fluid]
+    periodic = periodic_axes(snap, dim)
+    if len(points) < 2:
+        raise SnapshotError(f"{path}: fewer than two fluid particles, no distances to measure")
+    d = nearest_distances(points, geo["box_lo"][:dim], geo["box_hi"][:dim], periodic)
+    mean = float(d.mean())
+    return {"path": path, "dimension": dim, "periodic": periodic, "count": int(len(points)),
+            "mean_nn": mean, "cov_nn": float(d.std() / mean) if mean > 0 else float("nan"),
+            "min_pair": float(d.min()), "rho_min": float(rho.min()),
+            "rho_max": float(rho.max()), "rho_spread": float(rho.std() / rho.mean())}
+
+
+def report(stats):
+    axes = "".join(a for a, p in zip("xyz", stats["periodic"]) if p) or "none"
+    return "\n".join([
+        f"{stats['path']}: {stats['dimension']}D, periodic axes: {axes}",
+        f"  fluid particles          {stats['count']}",
+        f"  nearest-neighbour mean   {stats['mean_nn']:.6g} m",
+        f"  nearest-neighbour CoV    {stats['cov_nn']:.6g}",
+        f"  minimum pair distance    {stats['min_pair']:.6g} m",
+        f"  density min / max        {stats['rho_min']:.6g} / {stats['rho_max']:.6g} kg/m^3",
+        f"  density std / mean       {stats['rho_spread']:.6g}"])
+
+
+def ratios(first, second):
+    """second / first for the count, the mean and the CoV of the nearest distances."""
+    def ratio(a, b):
+        return b / a if a != 0 else float("inf") if b != 0 else float("nan")
+    return {"count": ratio(first["count"], second["count"]),
+            "mean_nn": ratio(first["mean_nn"], second["mean_nn"]),
+            "cov_nn": ratio(first["cov_nn"], second["cov_nn"])}
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(
+        description="Disorder statistics of the fluid particles of one or two snapshots: "
+                    "count, mean and coefficient of variation of the nearest-neighbour "
+                    "distance, minimum pair distance, density spread; with two files the "
+                    "ratios second / first (periodic axes from the run's input).")
+    parser.add_argument("snapshots", nargs="+", metavar="SNAP.h5", help="one or two files")
+    args = parser.parse_args(argv)
+    if len(args.snapshots) > 2:
+        parser.error("give one or two snapshot files")
+    try:
+        stats = [disorder(path) for path in args.snapshots]
+    except (OSError, KeyError, ValueError) as problem:
+        print(f"sph_disorder: {problem}", file=sys.stderr)
+        return 1
+    print("\n".join(report(s) for s in stats))
+    if len(stats) == 2:
+        r = ratios(*stats)
+        print("second / first:")
+        print(f"  count ratio              {r['count']:.6g}")
+        print(f"  mean nearest ratio       {r['mean_nn']:.6g}")
+        print(f"  CoV ratio                {r['cov_nn']:.6g}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,119 @@
+"""Tests of scripts/sph_disorder.py on synthetic 2D snapshots whose figures are known by hand.
+
+Run from the repository root: .venv/bin/python -m unittest discover -s tests/python -v
+
+First file: a 4 x 4 lattice of spacing 1 in the box [0, 4)^2 (first site at 1/2), periodic in
+x, walls in y, with two particles moved:
+ - (0.5, 0.5) -> (0.2, 0.5): through the periodic x face it is 0.7 from (3.5, 0.5), so both
+   have nearest distance 0.7 (without the wrap: 1.044 and 1.0);
+ - (1.5, 3.5) -> (1.5, 3.9): y is not periodic, so its nearest is (0.5, 3.5) or (2.5, 3.5) at
+   sqrt(1.16) (through a y wrap it would be 0.6 from (1.5, 0.5));
+ - the other 13 have nearest distance 1. A wall particle (kind 1) at (2.5, 1.0), 0.5 from two
+   fluid particles, must be left out.
+Densities: 14 at 1000, one at 990, one at 1010: mean 1000, std sqrt(200 / 16).
+Second file: the 2 x 2 sublattice of the perfect lattice (spacing 2, nearest distance 2).
+"""
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import unittest
+
+import numpy as np
+import h5py
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+SCRIPT = os.path.join(ROOT, "scripts", "sph_disorder.py")
+sys.path.insert(0, os.path.join(ROOT, "scripts"))
+
+import sph_disorder  # noqa: E402
+
+INPUT = """&domain
+    dimension = 2
+    box_lo = 0.0, 0.0, 0.0
+    box_hi = 4.0, 4.0, 0.0
+    dx = 1.0
+    boundary = 'periodic', 'periodic', 'wall', 'wall', 'periodic', 'periodic'
+/
+"""
+
+
+def write(path, pos, kind, rho):
+    n = len(pos)
+    with h5py.File(path, "w") as f:
+        f.attrs["time"] = 0.0
+        f.attrs["step"] = np.int64(0)
+        f.attrs["dimension"] = np.int32(2)
+        f.attrs["input"] = INPUT
+        f.attrs["format"] = "sphremesh-snapshot"
+        f.attrs["format_version"] = np.int32(1)
+        g = f.create_group("particles")
+        g["position"] = np.asarray(pos, dtype=float)
+        g["velocity"] = np.zeros((n, 3))
+        g["density"] = np.asarray(rho, dtype=float)
+        for name in ("pressure", "mass", "smoothing_length", "energy"):
+            g[name] = np.ones(n)
+        g["id"] = np.arange(1, n + 1, dtype=np.int64)
+        g["kind"] = np.asarray(kind, dtype=np.int32)
+        g["level"] = np.zeros(n, dtype=np.int32)
+        g["rank"] = np.zeros(n, dtype=np.int32)
+        f.attrs["write_complete"] = np.int32(1)
+
+
+class DisorderTest(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.tmp = tempfile.TemporaryDirectory()
+        pos = [[i + 0.5, j + 0.5, 0.0] for j in range(4) for i in range(4)]
+        pos[0] = [0.2, 0.5, 0.0]                 # (0.5, 0.5) moved
+        pos[13] = [1.5, 3.9, 0.0]                # (1.5, 3.5) moved
+        rho = [1000.0] * 16
+        rho[5], rho[10] = 990.0, 1010.0
+        pos.append([2.5, 1.0, 0.0])              # a wall particle
+        rho.append(500.0)
+        kind = [0] * 16 + [1]
+        cls.first = os.path.join(cls.tmp.name, "first.h5")
+        write(cls.first, pos, kind, rho)
+        coarse = [[i + 0.5, j + 0.5, 0.0] for j in (0, 2) for i in (0, 2)]
+        cls.second = os.path.join(cls.tmp.name, "second.h5")
+        write(cls.second, coarse, [0] * 4, [1000.0] * 4)
+        nn = np.array([0.7, 0.7, math.sqrt(1.16)] + [1.0] * 13)
+        cls.mean = nn.mean()
+        cls.cov = math.sqrt(np.mean((nn - cls.mean) ** 2)) / cls.mean
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.tmp.cleanup()
+
+    def test_one_file_figures(self):
+        s = sph_disorder.disorder(self.first)
+        self.assertEqual(s["count"], 16)                         # the wall particle left out
+        self.assertEqual(s["periodic"], [True, False])
+        self.assertAlmostEqual(s["mean_nn"], self.mean, places=12)
+        self.assertAlmostEqual(s["cov_nn"], self.cov, places=12)
+        self.assertAlmostEqual(s["min_pair"], 0.7, places=12)    # across the periodic face
+        self.assertEqual((s["rho_min"], s["rho_max"]), (990.0, 1010.0))
+        self.assertAlmostEqual(s["rho_spread"], math.sqrt(200.0 / 16.0) / 1000.0, places=14)
+
+    def test_two_files_ratios_on_the_command_line(self):
+        run = subprocess.run([sys.executable, SCRIPT, self.first, self.second],
+                             capture_output=True, text=True)
+        self.assertEqual(run.returncode, 0, run.stderr)
+        lines = {line.split("  ")[1].strip(): line.split()[-1]
+                 for line in run.stdout.splitlines() if "ratio" in line}
+        self.assertAlmostEqual(float(lines["count ratio"]), 0.25, places=5)
+        self.assertAlmostEqual(float(lines["mean nearest ratio"]), 2.0 / self.mean, places=5)
+        self.assertAlmostEqual(float(lines["CoV ratio"]), 0.0, places=5)
+        self.assertIn("periodic axes: x", run.stdout)
+
+    def test_missing_file_is_a_message(self):
+        run = subprocess.run([sys.executable, SCRIPT, os.path.join(self.tmp.name, "no.h5")],
+                             capture_output=True, text=True)
+        self.assertEqual(run.returncode, 1)
+        self.assertIn("sph_disorder:", run.stderr)
+        self.assertNotIn("Traceback", run.stderr)
+
+
+if __name__ == "__main__":
+    unittest.main()
