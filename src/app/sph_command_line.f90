@@ -10,6 +10,8 @@ module sph_command_line
         logical :: check_only = .false.     !< --check: set up, report, write nothing
         character(len=:), allocatable :: input_file
         character(len=:), allocatable :: restart_from   !< checkpoint file or directory, '' = none
+        !> --remesh MODE IN OUT: remesh a snapshot or checkpoint offline ('' = not asked)
+        character(len=:), allocatable :: remesh_mode, remesh_in, remesh_out
     end type options_t
 
 contains
@@ -25,6 +27,9 @@ contains
         errmsg = ''
         opts%input_file = ''
         opts%restart_from = ''
+        opts%remesh_mode = ''
+        opts%remesh_in = ''
+        opts%remesh_out = ''
         n = command_argument_count()
         i = 1
         do while (i <= n)
@@ -44,6 +49,24 @@ contains
                 end if
                 i = i + 1
                 opts%restart_from = argument(i)
+            case ('--remesh')
+                if (i + 3 > n) then
+                    stat = 1
+                    errmsg = '--remesh needs a mode (refine, coarsen or same), an input ' // &
+                        'snapshot or checkpoint and an output checkpoint'
+                    return
+                end if
+                opts%remesh_mode = argument(i + 1)
+                opts%remesh_in = argument(i + 2)
+                opts%remesh_out = argument(i + 3)
+                i = i + 3
+                if (all(opts%remesh_mode /= [character(len=7) :: 'refine', 'coarsen', 'same'])) &
+                    then
+                    stat = 1
+                    errmsg = "--remesh: unknown mode '" // opts%remesh_mode // &
+                        "' (refine, coarsen or same)"
+                    return
+                end if
             case default
                 if (arg(1:1) == '-') then
                     stat = 1
@@ -60,7 +83,14 @@ contains
             end select
             i = i + 1
         end do
-        if (.not. (opts%show_help .or. opts%show_version) .and. len(opts%input_file) == 0) then
+        if (len(opts%remesh_mode) > 0 .and. len(opts%input_file) > 0) then
+            stat = 1
+            errmsg = '--remesh takes no input file (it uses the input stored in ' // &
+                opts%remesh_in // ')'
+            return
+        end if
+        if (.not. (opts%show_help .or. opts%show_version) .and. len(opts%input_file) == 0 &
+            .and. len(opts%remesh_mode) == 0) then
             stat = 1
             errmsg = 'no input file given (usage: sphremesh INPUT.nml [--restart CHECKPOINT]; ' // &
                 'see sphremesh --help)'
@@ -82,6 +112,7 @@ contains
         text = &
             'usage: mpirun -np N sphremesh INPUT.nml [--restart CHECKPOINT.h5|DIR]' // nl // &
             '       mpirun -np N sphremesh --check INPUT.nml' // nl // &
+            '       mpirun -np N sphremesh --remesh refine|coarsen|same IN.h5 OUT.h5' // nl // &
             '       sphremesh --help | --version' // nl // nl // &
             'Smoothed Particle Hydrodynamics for low-Reynolds-number, nearly incompressible' // &
             nl // 'flows, configured by a Fortran namelist file (see doc/input.md and input/).' // &
@@ -93,9 +124,15 @@ contains
             '                     complete checkpoint in directory PATH' // nl // &
             '  --check            check the input and set the run up: print the particle' // nl // &
             '                     counts, memory, time step and steps, then stop (no output)' // &
+            nl // &
+            '  --remesh MODE IN OUT  remesh the fluid of snapshot or checkpoint IN (refine:' // &
+            nl // &
+            '                     dx/2, coarsen: 2 dx, same: same dx) into checkpoint OUT;' // &
+            nl // &
+            '                     continue with --restart OUT and &domain dx = the new dx' // &
             nl // nl // &
             'namelist groups: &run &output &domain &fluid &numerics &parallel &restart' // nl // &
-            '                 &health &body (see doc/input.md)' // nl // &
+            '                 &health &remesh &body (see doc/input.md)' // nl // &
             'example: mpirun -np 2 sphremesh input/poiseuille.nml'
     end function usage_text
 end module sph_command_line

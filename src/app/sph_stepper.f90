@@ -10,7 +10,8 @@ module sph_stepper
     use sph_errors, only: fatal_collective
     use sph_logger, only: log_info
     use sph_particles, only: particles_t, particles_init, particles_gather, KIND_FLUID, &
-        HALO_MOVE, HALO_DENSITY, HALO_STRAIN, pack_widths, ALL_FIELDS
+        HALO_MOVE, HALO_DENSITY, HALO_STRAIN, pack_widths, ALL_FIELDS, particles_reserve, &
+        particles_pack, particles_unpack
     use sph_physics, only: physics_t, physics_from_config, DENSITY_SUMMATION, &
         VISCOSITY_STRAIN_RATE, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR, SHIFTING_NONE, &
         WALLS_MORRIS, WALL_PRESSURE_EXTRAPOLATED
@@ -39,6 +40,13 @@ module sph_stepper
     use sph_xdmf, only: xdmf_index_entry, write_xdmf
     use sph_filesystem, only: delete_file
     use sph_version, only: code_version
+    use sph_config, only: config_parse
+    use sph_snapshot, only: read_snapshot_header, read_snapshot_rows
+    use sph_checkpoint, only: stored_spacing
+    use sph_global_ids, only: global_max_id
+    use sph_particles, only: particles_free
+    use sph_remesh_driver, only: remesh_report_t, remesh_fluid, remesh_mode_code, &
+        remesh_spacing_factor, REMESH_NONE, REMESH_SAME
     implicit none
     private
     public :: simulation_solid_forces, simulation_write_forces, simulation_log_forces
@@ -46,7 +54,7 @@ module sph_stepper
     public :: simulation_t, simulation_setup, simulation_step, simulation_rebalance
     public :: simulation_analytic_error, simulation_prepare_neighbours, simulation_free
     public :: simulation_restart, simulation_write_checkpoint, simulation_write_snapshot
-    public :: fluid_density_range
+    public :: fluid_density_range, simulation_remesh, simulation_remesh_file
 
     type :: simulation_t
         type(config_t) :: cfg
@@ -69,6 +77,7 @@ module sph_stepper
         character(len=:), allocatable :: input_text
         character(len=:), allocatable :: snapshot_index   !< one line per snapshot, for XDMF
         character(len=512), allocatable :: checkpoints(:) !< written by this run, oldest first
+        real(wp) :: next_remesh_time = huge(1.0_wp)  !< &remesh every_time: when the next is due
     end type simulation_t
 
 contains
@@ -114,6 +123,8 @@ contains
         sim%list_skin = 0.1_wp * sim%phys%kernel%h
         sim%time = 0.0_wp
         sim%step = 0
+        sim%next_remesh_time = huge(1.0_wp)
+        if (cfg%remesh%every_time > 0.0_wp) sim%next_remesh_time = cfg%remesh%every_time
     end subroutine setup_common
 
     !> Build everything from a validated configuration (collective).
@@ -158,6 +169,7 @@ contains
         integer :: stat
         logical :: same_layout, is_directory
         character(len=256) :: line
+        real(wp) :: stored_dx
 
         call setup_common(sim, env, cfg)
         inquire(file=trim(from) // '/.', exist=is_directory)
@@ -170,8 +182,18 @@ contains
             path = from
         end if
         call read_checkpoint(env, path, sim%p, sim%domain, sim%time, sim%step, stored_input, &
-            index_text, same_layout, stat, errmsg)
+            index_text, same_layout, stat, errmsg, stored_dx)
         if (stat /= 0) call fatal_collective('restart', errmsg)
+        ! a remeshed (refined or coarsened) checkpoint holds particles of another spacing:
+        ! the input must say so (kernel, masses of new walls, time step follow from dx)
+        if (stored_dx > 0.0_wp .and. abs(stored_dx - cfg%domain%dx) > 1.0e-9_wp * stored_dx) then
+            write(line, '(a,es15.8,a,es15.8,a)') "the checkpoint's particles have spacing " // &
+                'dx = ', stored_dx, ' m but &domain dx = ', cfg%domain%dx, &
+                ' m; set &domain dx to the checkpoint''s spacing to continue from it'
+            call fatal_collective('restart', trim(line))
+        end if
+        if (cfg%remesh%every_time > 0.0_wp) sim%next_remesh_time = cfg%remesh%every_time * &
+            (floor(sim%time / cfg%remesh%every_time * (1.0_wp + 1.0e-12_wp)) + 1)
         sim%snapshot_index = index_text
         if (.not. same_layout) then
             call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
@@ -219,7 +241,7 @@ contains
             sim%step)
         call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, &
             sim%cfg%domain%dimension, &
-            code_version, sim%input_text, sim%snapshot_index, stat, errmsg)
+            code_version, sim%input_text, sim%snapshot_index, stat, errmsg, sim%cfg%domain%dx)
         if (stat /= 0) call fatal_collective('checkpoint', errmsg)
         if (all(sim%checkpoints /= path)) &
             sim%checkpoints = [character(len=512) :: sim%checkpoints, path]
@@ -526,13 +548,196 @@ contains
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
     end subroutine migrate_and_rebuild
 
-    !> Hook: refine and coarsen particles when a remeshing pass is due (no-op today).
+    !> Full-domain remeshing when &remesh says it is due: every every_steps steps and/or
+    !> whenever the time passes a multiple of every_time (collective).
     subroutine remesh_if_due(sim, env)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
-        associate(unused_sim => sim, unused_env => env)
-        end associate
+        logical :: due
+        integer :: mode
+        mode = remesh_mode_code(sim%cfg%remesh%mode)
+        if (mode == REMESH_NONE) return
+        due = .false.
+        if (sim%cfg%remesh%every_steps > 0) &
+            due = mod(sim%step, int(sim%cfg%remesh%every_steps, i8)) == 0
+        if (sim%time >= sim%next_remesh_time * (1.0_wp - 1.0e-12_wp)) then
+            due = .true.
+            do while (sim%next_remesh_time <= sim%time * (1.0_wp + 1.0e-12_wp))
+                sim%next_remesh_time = sim%next_remesh_time + sim%cfg%remesh%every_time
+            end do
+        end if
+        if (due) call simulation_remesh(sim, env, mode)
     end subroutine remesh_if_due
+
+    !> Remesh every fluid particle (sph_remesh_driver: refine, coarsen or same level) and
+    !> rebuild around them (collective). Refining or coarsening changes &domain dx in the
+    !> run's configuration (kernel, walls, time step follow) and regenerates the wall
+    !> particles at the new spacing; same level keeps them. Logs what it did.
+    subroutine simulation_remesh(sim, env, mode)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        integer, intent(in) :: mode
+        call remesh_state(sim, env, mode, mode /= REMESH_SAME)
+    end subroutine simulation_remesh
+
+    !> The remesh itself; regenerate: new wall particles at the new spacing.
+    subroutine remesh_state(sim, env, mode, regenerate)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        integer, intent(in) :: mode
+        logical, intent(in) :: regenerate
+        type(remesh_report_t) :: report
+        real(wp) :: dx_old, dx_new, h_new
+        integer :: stat, axis
+        logical :: periodic(3)
+        character(len=:), allocatable :: errmsg
+        integer, allocatable :: order(:)
+        type(particles_t) :: walls
+        integer(i8) :: base
+        integer :: k, c, n_real, n_int
+        integer, allocatable :: keep(:)
+        real(wp), allocatable :: rbuf(:, :)
+        integer(i8), allocatable :: ibuf(:, :)
+
+        dx_old = sim%cfg%domain%dx
+        dx_new = dx_old * remesh_spacing_factor(mode)
+        periodic = .false.
+        do axis = 1, sim%cfg%domain%dimension
+            periodic(axis) = sim%cfg%domain%is_periodic(axis)
+        end do
+        if (mode /= REMESH_SAME) then
+            sim%cfg%domain%dx = dx_new
+            call physics_from_config(sim%cfg, sim%phys, stat, errmsg)
+            if (stat /= 0) call fatal_collective('remesh', errmsg)
+            sim%solids = solids_from_config(sim%cfg)
+            sim%skin = 2.0_wp * sim%cfg%numerics%cfl * sim%phys%kernel%h
+            sim%list_skin = 0.1_wp * sim%phys%kernel%h
+        end if
+        h_new = sim%phys%kernel%h
+        call remesh_fluid(env, mode, sim%cfg%domain%dimension, dx_old, sim%cfg%domain%box_lo, &
+            sim%cfg%domain%box_hi, periodic, h_new, sim%p, report, stat, errmsg)
+        if (stat /= 0) call fatal_collective('remesh', errmsg)
+        if (regenerate) then
+            ! the fluid first (rank 0 holds it all), then the walls of the lattice at dx_new,
+            ! their ids after every fluid id (lattice ids are unique and rank independent)
+            keep = pack([(k, k = 1, sim%p%n_owned)], sim%p%kind(1:sim%p%n_owned) == KIND_FLUID)
+            call particles_gather(sim%p, keep)
+            sim%p%n_owned = size(keep)
+            sim%p%n_total = sim%p%n_owned
+            base = global_max_id(env, sim%p%id, sim%p%n_owned)
+            call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
+            call particles_init(walls, 1024, sim%cfg%domain%dimension)
+            call create_lattice_particles(sim%cfg, sim%phys, sim%solids, sim%domain, walls)
+            keep = pack([(k, k = 1, walls%n_owned)], walls%kind(1:walls%n_owned) /= KIND_FLUID)
+            c = sim%p%n_owned
+            call particles_reserve(sim%p, c + size(keep))
+            call pack_widths(walls, ALL_FIELDS, n_real, n_int)
+            allocate(rbuf(n_real, max(size(keep), 1)), ibuf(n_int, max(size(keep), 1)))
+            call particles_pack(walls, ALL_FIELDS, keep, size(keep), rbuf, ibuf)
+            call particles_unpack(sim%p, ALL_FIELDS, c + 1, size(keep), rbuf, ibuf)
+            sim%p%id(c + 1:c + size(keep)) = base + sim%p%id(c + 1:c + size(keep))
+            sim%p%n_owned = c + size(keep)
+            sim%p%n_total = sim%p%n_owned
+            call particles_free(walls)
+        end if
+        call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
+        call halo_setup(sim%halo, sim%domain, sim%phys%kernel%support + sim%skin)
+        call migrate_particles(sim%domain, env, sim%p)
+        ! in id order before the cell sort, as on set-up: independent of the arrival order
+        allocate(order(sim%p%n_owned))
+        call id_order(sim%p%id, sim%p%n_owned, order)
+        call particles_gather(sim%p, order)
+        call simulation_prepare_neighbours(sim, env)
+        call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+        call log_remesh(report, mode, dx_old, dx_new, sim%time, sim%step)
+    end subroutine remesh_state
+
+    !> The log lines of one remesh (rank 0 prints).
+    subroutine log_remesh(report, mode, dx_old, dx_new, time, step)
+        type(remesh_report_t), intent(in) :: report
+        integer, intent(in) :: mode
+        real(wp), intent(in) :: dx_old, dx_new, time
+        integer(i8), intent(in) :: step
+        character(len=400) :: line
+        character(len=8), parameter :: names(0:3) = [character(len=8) :: 'none', 'refine', &
+            'coarsen', 'same']
+        real(wp) :: scale
+        write(line, '(a,es12.5,a,i0,a,i0,a,i0,a,es10.3,a,es10.3,a)') 'remesh ' // &
+            trim(names(mode)) // ' at t = ', time, ' s, step ', step, ': fluid particles ', &
+            report%n_before, ' -> ', report%n_after, ', dx ', dx_old, ' -> ', dx_new, ' m'
+        call log_info(trim(line))
+        write(line, '(a,es23.15,a,es23.15,a,es10.3,a)') '  mass ', report%mass_before, &
+            ' -> ', report%mass_after, ' kg (relative change ', &
+            abs(report%mass_after - report%mass_before) / max(abs(report%mass_before), &
+            tiny(1.0_wp)), ')'
+        call log_info(trim(line))
+        ! momentum change relative to the larger of |P| and (mass x largest speed scale 1)
+        scale = max(norm2(report%momentum_before), tiny(1.0_wp))
+        write(line, '(a,3es13.5,a,3es13.5,a,es10.3,a)') '  momentum ', report%momentum_before, &
+            ' ->', report%momentum_after, ' kg m/s (|change| / |before| ', &
+            norm2(report%momentum_after - report%momentum_before) / scale, ')'
+        call log_info(trim(line))
+        write(line, '(a,f10.3,a,f10.3,a,i0,a,i0,a,i0,a)') '  time ', report%seconds, ' s (', &
+            1.0e6_wp * report%seconds / real(max(report%n_before, report%n_after, 1_i8), wp), &
+            ' us per particle); irregular cells ', report%n_irregular, &
+            ', transfer fallbacks: mass ', report%n_mass_fallback, ', velocity ', &
+            report%n_velocity_fallback, ''
+        call log_info(trim(line))
+    end subroutine log_remesh
+
+    !> Offline remeshing (sphremesh --remesh MODE IN.h5 OUT.h5, collective, any rank count):
+    !> the particles of a snapshot or checkpoint IN, set up with the input stored in it, are
+    !> remeshed and written as a checkpoint OUT a run continues from (--restart OUT.h5 with
+    !> &domain dx set to the new spacing, which OUT records as its attribute 'dx'; the input
+    !> stored in OUT is IN's). The wall particles are always regenerated from the stored
+    !> input's walls and bodies at the new spacing (a snapshot lacks their wall geometry).
+    subroutine simulation_remesh_file(env, mode_name, in_path, out_path)
+        type(mpi_env_t), intent(in) :: env
+        character(len=*), intent(in) :: mode_name, in_path, out_path
+        type(simulation_t) :: sim
+        type(config_t) :: cfg
+        character(len=:), allocatable :: input_text, errmsg
+        integer :: stat, dimension, mode, n, k
+        integer(i8) :: n_rows, share, extra, offset, step
+        real(wp) :: time, dx_file
+        integer, allocatable :: keep(:)
+        character(len=32) :: number
+
+        mode = remesh_mode_code(mode_name)
+        if (mode <= REMESH_NONE) call fatal_collective('remesh', "unknown mode '" // &
+            mode_name // "' (refine, coarsen or same)")
+        call read_snapshot_header(env, in_path, time, step, dimension, n_rows, input_text, &
+            stat, errmsg)
+        if (stat /= 0) call fatal_collective('remesh', errmsg)
+        call config_parse(cfg, input_text, in_path // ' (stored input)', stat, errmsg)
+        if (stat /= 0) call fatal_collective('remesh', errmsg)
+        ! a file remeshed before carries its spacing; its stored input has the original dx
+        dx_file = stored_spacing(env, in_path)
+        if (dx_file > 0.0_wp) cfg%domain%dx = dx_file
+        call setup_common(sim, env, cfg)
+        share = n_rows / env%nranks
+        extra = mod(n_rows, int(env%nranks, i8))
+        n = int(share + merge(1_i8, 0_i8, env%rank < extra))
+        offset = env%rank * share + min(int(env%rank, i8), extra)
+        call read_snapshot_rows(env, in_path, sim%p, offset, n, stat, errmsg)
+        if (stat /= 0) call fatal_collective('remesh', errmsg)
+        sim%time = time
+        sim%step = step
+        ! walls are made anew at the new spacing: only the fluid is kept
+        keep = pack([(k, k = 1, sim%p%n_owned)], sim%p%kind(1:sim%p%n_owned) == KIND_FLUID)
+        call particles_gather(sim%p, keep)
+        sim%p%n_owned = size(keep)
+        sim%p%n_total = sim%p%n_owned
+        call log_info('remesh: ' // in_path // ' -> ' // out_path)
+        call remesh_state(sim, env, mode, .true.)
+        call write_checkpoint(env, sim%p, sim%domain, out_path, sim%time, sim%step, &
+            sim%cfg%domain%dimension, code_version, input_text, '', stat, errmsg, &
+            sim%cfg%domain%dx)
+        if (stat /= 0) call fatal_collective('remesh', errmsg)
+        write(number, '(es15.8)') sim%cfg%domain%dx
+        call log_info('remesh: checkpoint ' // out_path // ' written; continue with ' // &
+            '--restart ' // out_path // ' and &domain dx = ' // trim(adjustl(number)))
+    end subroutine simulation_remesh_file
 
     !> Hook: move the transition zones between resolution levels with the flow (no-op today).
     subroutine update_transition_zones(sim, env)

@@ -8,7 +8,8 @@ program sphremesh_main
     use sph_input, only: load_config
     use sph_version, only: code_version, build_options
     use sph_simulation, only: simulation_run
-    use sph_stepper, only: simulation_t, simulation_setup, simulation_check_report
+    use sph_stepper, only: simulation_t, simulation_setup, simulation_check_report, &
+        simulation_remesh_file
     use sph_signals, only: signals_install
     use mpi_f08, only: MPI_Finalize
     implicit none
@@ -41,6 +42,10 @@ program sphremesh_main
     write(nranks_text, '(i0)') env%nranks
     call log_info(code_version // ' on ' // trim(nranks_text) // ' MPI rank(s)')
     call log_info('build: ' // build_options)
+    if (len(opts%remesh_mode) > 0) then
+        call simulation_remesh_file(env, opts%remesh_mode, opts%remesh_in, opts%remesh_out)
+        call finish(0)
+    end if
     call load_config(env, opts%input_file, cfg, stat, errmsg)
     if (stat /= 0) call fatal_collective('input', errmsg)
     call log_info('resolved configuration (' // opts%input_file // '):')

@@ -16,6 +16,7 @@ module sph_config
     use sph_parallel_input, only: parallel_input_t, read_parallel_input
     use sph_restart_input, only: restart_input_t, read_restart_input
     use sph_health_input, only: health_input_t, read_health_input
+    use sph_remesh_input, only: remesh_input_t, read_remesh_input
     use sph_body_input, only: body_input_t, read_body_inputs, check_body_wall_model
     implicit none
     private
@@ -23,8 +24,9 @@ module sph_config
     public :: n_faces, face_names, known_groups, list_groups
 
     !> Groups given once (or left out), in the order they are read and written back.
-    character(len=8), parameter :: known_groups(8) = [character(len=8) :: &
-        'run', 'output', 'domain', 'fluid', 'numerics', 'parallel', 'restart', 'health']
+    character(len=8), parameter :: known_groups(9) = [character(len=8) :: &
+        'run', 'output', 'domain', 'fluid', 'numerics', 'parallel', 'restart', 'health', &
+        'remesh']
     !> Groups that may be given several times (their owner reads a list), written back after
     !> the others: &body, one per solid body inside the box.
     character(len=8), parameter :: list_groups(1) = [character(len=8) :: 'body']
@@ -40,6 +42,7 @@ module sph_config
         type(parallel_input_t) :: parallel
         type(restart_input_t) :: restart
         type(health_input_t) :: health
+        type(remesh_input_t) :: remesh
         type(body_input_t), allocatable :: bodies(:)   !< &body groups, in file order
         character(len=:), allocatable :: source_file
         character(len=:), allocatable :: resolved   !< namelist text of every key's value
@@ -134,6 +137,7 @@ contains
         call read_parallel_input(grp(6), cfg%parallel)
         call read_restart_input(grp(7), cfg%restart)
         call read_health_input(grp(8), cfg%health)
+        call read_remesh_input(grp(9), cfg%remesh)
         call read_body_inputs(bodies, cfg%domain, cfg%bodies)
         if (sum(grp%n_errors) == 0) call check_body_wall_model(bodies, cfg%bodies, &
             cfg%numerics%wall_model)

@@ -10,14 +10,15 @@ module sph_checkpoint
     use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL, FIELD_CHECKPOINT
     use sph_domain, only: domain_t, domain_set_tree
     use sph_hdf5, only: h5_file_t, h5_open_read, h5_close, h5_group_create, h5_write_rows, &
-        h5_read_rows, h5_dataset_rows, h5_write_attribute, h5_read_attribute, h5_row_layout
+        h5_read_rows, h5_dataset_rows, h5_write_attribute, h5_read_attribute, h5_row_layout, &
+        h5_attribute_exists
     use sph_filesystem, only: list_directory
     use sph_snapshot, only: snapshot_begin, snapshot_end, read_snapshot_header, &
         read_snapshot_rows, write_particle_fields, read_particle_fields, check_datasets
     implicit none
     private
     public :: write_checkpoint, read_checkpoint, checkpoint_filename, find_latest_checkpoint
-    public :: checkpoint_format_version
+    public :: checkpoint_format_version, stored_spacing
 
     integer(i4), parameter :: checkpoint_format_version = 1
 
@@ -34,8 +35,11 @@ contains
             trim(adjustl(digits)) // '.h5'
     end function checkpoint_filename
 
+    !> dx, when given, is stored as the root attribute 'dx': the particle spacing of the
+    !> state (after a refine or coarsen it differs from the input's &domain dx, which a
+    !> restart checks, see read_checkpoint).
     subroutine write_checkpoint(env, p, domain, path, time, step, dimension, code_version, &
-                                input_text, snapshot_index, stat, errmsg)
+                                input_text, snapshot_index, stat, errmsg, dx)
         type(mpi_env_t), intent(in) :: env
         type(particles_t), intent(inout) :: p
         type(domain_t), intent(in) :: domain
@@ -45,6 +49,7 @@ contains
         integer, intent(in) :: dimension
         integer, intent(out) :: stat
         character(len=:), allocatable, intent(out) :: errmsg
+        real(wp), intent(in), optional :: dx
         type(h5_file_t) :: file
         integer :: n, n_tree, k
         integer(i8) :: my_rows(1), offset, total
@@ -65,6 +70,7 @@ contains
         if (stat /= 0) return
         call h5_write_attribute(file, 'checkpoint_format_version', checkpoint_format_version)
         call h5_write_attribute(file, 'snapshot_index', snapshot_index)
+        if (present(dx)) call h5_write_attribute(file, 'dx', dx)
         call h5_row_layout(env, n, offset, total)
         call write_particle_fields(env, file, p, FIELD_CHECKPOINT, [(k, k = 1, n)], n, offset, &
             total)
@@ -90,8 +96,9 @@ contains
     !> Read a checkpoint into p (owned particles). same_layout is true when the file was
     !> written on this many ranks: then the decomposition in `domain` is restored too;
     !> otherwise the caller must partition and migrate. Refuses incomplete or foreign files.
+    !> dx: the particle spacing stored by write_checkpoint, 0 when the file has none.
     subroutine read_checkpoint(env, path, p, domain, time, step, input_text, snapshot_index, &
-                               same_layout, stat, errmsg)
+                               same_layout, stat, errmsg, dx)
         type(mpi_env_t), intent(in) :: env
         character(len=*), intent(in) :: path
         type(particles_t), intent(inout) :: p
@@ -102,8 +109,10 @@ contains
         logical, intent(out) :: same_layout
         integer, intent(out) :: stat
         character(len=:), allocatable, intent(out) :: errmsg
+        real(wp), intent(out), optional :: dx
         type(h5_file_t) :: file
-        integer :: dimension, n, n_tree
+        integer :: dimension, n, n_tree, dx_stat
+        real(wp) :: stored_dx
         integer(i4) :: version, nranks_file
         integer(i8) :: n_rows, offset, share, extra
         integer(i8), allocatable :: rank_rows(:)
@@ -130,6 +139,13 @@ contains
             return
         end if
         call h5_read_attribute(file, 'snapshot_index', snapshot_index, stat)
+        if (present(dx)) then
+            dx = 0.0_wp
+            if (h5_attribute_exists(file, 'dx')) then
+                call h5_read_attribute(file, 'dx', stored_dx, dx_stat)
+                if (dx_stat == 0) dx = stored_dx
+            end if
+        end if
         call h5_read_attribute(file, 'nranks', nranks_file, stat)
         same_layout = nranks_file == env%nranks .and. &
             h5_dataset_rows(file, 'checkpoint/rank_rows') == env%nranks
@@ -166,6 +182,23 @@ contains
         call read_particle_fields(env, file, p, FIELD_CHECKPOINT, n, offset)
         call h5_close(file)
     end subroutine read_checkpoint
+
+    !> The particle spacing a checkpoint records (attribute 'dx'), 0 when the file has none
+    !> or cannot be read (a snapshot; collective).
+    real(wp) function stored_spacing(env, path) result(dx)
+        type(mpi_env_t), intent(in) :: env
+        character(len=*), intent(in) :: path
+        type(h5_file_t) :: file
+        integer :: stat
+        dx = 0.0_wp
+        call h5_open_read(env, path, file, stat)
+        if (stat /= 0) return
+        if (h5_attribute_exists(file, 'dx')) then
+            call h5_read_attribute(file, 'dx', dx, stat)
+            if (stat /= 0) dx = 0.0_wp
+        end if
+        call h5_close(file)
+    end function stored_spacing
 
     !> The newest complete checkpoint of `case_name` in `directory` (collective). Incomplete
     !> or unreadable candidates are skipped and named in `skipped`.

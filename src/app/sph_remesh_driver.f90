@@ -1,0 +1,455 @@
+!> The parallel side of full-domain remeshing (thesis sec. 3.2, issue 10): refine, coarsen or
+!> same-level remeshing of every fluid particle of a particle set spread over the ranks. The
+!> algorithms are the serial ones of src/remesh (no MPI there): sph_refine for the new
+!> positions, sph_coarsen for the kept set, sph_remesh_interp for the conservative transfer.
+!>
+!> Layout: the fluid particles are gathered on rank 0, remeshed there as ONE set with the
+!> periodic box, and the new fluid particles are left on rank 0 as owned particles; the caller
+!> migrates them to their owners (migrate_particles) and rebuilds the halo and the neighbours.
+!> Why not each rank on its owned particles with its halo:
+!>  - coarsen_select tags in the order of a hash of the ids (Jones-Plassmann priorities): the
+!>    tag of a particle depends on a chain of earlier-visited neighbours that no fixed halo
+!>    width bounds, so a halo-local call gives kept sets that differ with the rank count near
+!>    rank boundaries; doing it locally needs a parallel tagging loop (tag what has no
+!>    untagged earlier neighbour, exchange tags, repeat) inside sph_coarsen;
+!>  - remesh_transfer corrects momentum with ONE uniform velocity shift over the particles it
+!>    is given; applied per rank it would give each rank a different shift (a velocity jump at
+!>    rank boundaries wherever a particle falls back to lower order).
+!> Both need the src/remesh routines split into stages; the driver's interface (particles in,
+!> particles out, a report) does not change when that is done. The price today: rank 0 holds
+!> every fluid particle (about 110 bytes each, plus the work arrays of the algorithms) during
+!> a remesh. In exchange the result is identical, bit for bit, on any number of ranks.
+!>
+!> Ids: refined particles get fresh ids from their refinement keys (sph_global_ids, base =
+!> the largest id of any particle, walls included); kept particles of a coarsening keep their
+!> ids. Same level = refine, then coarsen the refined set (its kept particles carry the fresh
+!> ids), with ONE transfer from the old particles to the final ones.
+!>
+!> Transfer across periodic faces. remesh_transfer knows no box, so it is handed periodic
+!> images of the old and of the new particles within REACH = 5 h of the box (periodic axes
+!> only), h the coarser spacing. Each new particle in the box takes its mass from the old
+!> particles (in the box or images) within its support (2 h per axis); an image of an old
+!> particle within 2 h of the box sees all its targets (new particles and images within 4 h),
+!> the same set its original sees, shifted, so it hands on the same fractions and the masses
+!> of the particles in the box are those of a periodic transfer. Only the particles in the box
+!> are kept; the images' masses are dropped. Momentum: the uniform correction is redone over
+!> the particles in the box with the old total momentum (global sums).
+!>
+!> Density: rho_new = m_new / (volume handed on), the volume m/rho of each old particle being
+!> handed on with the same weights as its mass (sph_remesh_interp): a uniform density stays
+!> exactly uniform, and the density is consistent with the new mass and spacing. Energy: the
+!> handed-on m e divided by the new mass. Pressure, rates and start-of-step copies are left to
+!> the caller (update_pressure; the next step saves its start).
+module sph_remesh_driver
+    use mpi_f08, only: MPI_Gather, MPI_Gatherv, MPI_INTEGER, MPI_Wtime
+    use sph_kinds, only: wp, i8
+    use sph_errors, only: check_mpi
+    use sph_mpi_env, only: mpi_env_t, mpi_wp, mpi_i8, global_sum, global_max, agreed_status
+    use sph_particles, only: particles_t, particles_gather, particles_reserve, particles_clear, &
+        KIND_FLUID
+    use sph_refine, only: refine_positions
+    use sph_coarsen, only: coarsen_select
+    use sph_remesh_interp, only: remesh_transfer
+    use sph_global_ids, only: assign_global_ids, global_max_id
+    implicit none
+    private
+    public :: remesh_report_t, remesh_fluid, remesh_mode_code, remesh_spacing_factor
+    public :: REMESH_NONE, REMESH_REFINE, REMESH_COARSEN, REMESH_SAME
+
+    integer, parameter :: REMESH_NONE = 0
+    integer, parameter :: REMESH_REFINE = 1
+    integer, parameter :: REMESH_COARSEN = 2
+    integer, parameter :: REMESH_SAME = 3
+
+    !> image reach of the transfer, in units of the transfer spacing h (see the module header)
+    real(wp), parameter :: REACH = 5.0_wp
+
+    !> What a remesh did (global values, the same on every rank).
+    type :: remesh_report_t
+        integer(i8) :: n_before = 0, n_after = 0    !< fluid particles
+        real(wp) :: mass_before = 0.0_wp, mass_after = 0.0_wp
+        real(wp) :: momentum_before(3) = 0.0_wp, momentum_after(3) = 0.0_wp
+        real(wp) :: seconds = 0.0_wp                !< wall time of the remesh
+        integer :: n_irregular = 0                   !< refinement: cells without a centre
+        integer :: n_mass_fallback = 0, n_velocity_fallback = 0   !< transfer fallbacks
+    end type remesh_report_t
+
+contains
+
+    !> REMESH_* for 'none', 'refine', 'coarsen', 'same'; -1 otherwise.
+    pure integer function remesh_mode_code(name) result(code)
+        character(len=*), intent(in) :: name
+        select case (trim(adjustl(name)))
+        case ('none')
+            code = REMESH_NONE
+        case ('refine')
+            code = REMESH_REFINE
+        case ('coarsen')
+            code = REMESH_COARSEN
+        case ('same')
+            code = REMESH_SAME
+        case default
+            code = -1
+        end select
+    end function remesh_mode_code
+
+    !> New spacing / old spacing of a mode.
+    pure real(wp) function remesh_spacing_factor(mode) result(f)
+        integer, intent(in) :: mode
+        select case (mode)
+        case (REMESH_REFINE)
+            f = 0.5_wp
+        case (REMESH_COARSEN)
+            f = 2.0_wp
+        case default
+            f = 1.0_wp
+        end select
+    end function remesh_spacing_factor
+
+    !> Remesh the owned fluid particles of p (collective). dx: their spacing; box_lo/box_hi,
+    !> periodic: the domain; h_new: smoothing length given to the new particles. On return
+    !> every rank has its non-fluid owned particles unchanged (first, in their order) and
+    !> rank 0 also holds all the new fluid particles after them; ghosts and mirrors are gone
+    !> (n_total = n_owned). The caller migrates and rebuilds. stat /= 0 (the same on every
+    !> rank) when the algorithms refuse the set; p is then unchanged.
+    subroutine remesh_fluid(env, mode, dim, dx, box_lo, box_hi, periodic, h_new, p, report, &
+            stat, errmsg)
+        type(mpi_env_t), intent(in) :: env
+        integer, intent(in) :: mode, dim
+        real(wp), intent(in) :: dx, box_lo(3), box_hi(3), h_new
+        logical, intent(in) :: periodic(3)
+        type(particles_t), intent(inout) :: p
+        type(remesh_report_t), intent(out) :: report
+        integer, intent(out) :: stat
+        character(len=:), allocatable, intent(out) :: errmsg
+        real(wp), allocatable :: x(:, :), v(:, :), m(:), rho(:), e(:)
+        real(wp), allocatable :: xn(:, :), vn(:, :), mn(:), rhon(:), en(:)
+        integer(i8), allocatable :: ids(:), idn(:)
+        integer :: n, n_new, my_stat, k, c
+        integer(i8) :: base
+        real(wp) :: t0, local(4)
+        character(len=:), allocatable :: message
+        logical, allocatable :: fluid(:)
+
+        t0 = MPI_Wtime()
+        stat = 0
+        errmsg = ''
+        message = ''
+        ! totals before, over all ranks
+        fluid = p%kind(1:p%n_owned) == KIND_FLUID
+        call fluid_totals(p, fluid, local)
+        report%n_before = global_sum(env, int(count(fluid), i8))
+        call unpack_totals(global_sum(env, local), report%mass_before, report%momentum_before)
+        base = global_max_id(env, p%id, p%n_owned)
+
+        call gather_fluid(env, p, fluid, n, x, v, m, rho, e, ids)
+        my_stat = 0
+        n_new = 0
+        allocate(xn(3, 0), vn(3, 0), mn(0), rhon(0), en(0), idn(0))
+        if (env%rank == 0) call new_positions(my_stat, message)
+        stat = agreed_status(env, my_stat)
+        if (stat /= 0) then
+            errmsg = 'remesh: ' // message
+            if (env%rank /= 0) errmsg = 'remesh: refused on rank 0'
+            return
+        end if
+        ! fresh ids for refined particles (collective; only rank 0 has keys)
+        if (mode == REMESH_REFINE .or. mode == REMESH_SAME) call fresh_ids()
+        if (env%rank == 0 .and. mode == REMESH_SAME) call coarsen_step(dx / 2.0_wp, my_stat, &
+            message)
+        if (env%rank == 0 .and. my_stat == 0) call transfer(my_stat, message)
+        stat = agreed_status(env, my_stat)
+        if (stat /= 0) then
+            errmsg = 'remesh: ' // message
+            if (env%rank /= 0) errmsg = 'remesh: refused on rank 0'
+            return
+        end if
+
+        ! the non-fluid particles first, then (rank 0) the new fluid particles
+        call particles_gather(p, pack([(k, k = 1, p%n_owned)], .not. fluid))
+        p%n_owned = count(.not. fluid)
+        p%n_ghost = 0
+        p%n_total = p%n_owned
+        call particles_reserve(p, p%n_owned + n_new)
+        if (n_new > 0) call particles_clear(p, p%n_owned + 1, p%n_owned + n_new)
+        do k = 1, n_new
+            c = p%n_owned + k
+            p%x(:, c) = xn(:, k)
+            p%v(:, c) = vn(:, k)
+            p%m(c) = mn(k)
+            p%rho(c) = rhon(k)
+            p%e(c) = en(k)
+            p%h(c) = h_new
+            p%x_old(:, c) = xn(:, k)
+            p%v_old(:, c) = vn(:, k)
+            p%rho_old(c) = rhon(k)
+            p%e_old(c) = en(k)
+            p%id(c) = idn(k)
+            p%kind(c) = KIND_FLUID
+            p%level(c) = 0
+            p%solid(c) = 0
+        end do
+        p%n_owned = p%n_owned + n_new
+        p%n_total = p%n_owned
+
+        deallocate(fluid)
+        fluid = p%kind(1:p%n_owned) == KIND_FLUID
+        call fluid_totals(p, fluid, local)
+        report%n_after = global_sum(env, int(count(fluid), i8))
+        call unpack_totals(global_sum(env, local), report%mass_after, report%momentum_after)
+        report%seconds = global_max(env, MPI_Wtime() - t0)
+
+    contains
+
+        !> Rank 0: xn and (coarsening) idn of the new set, positions relative to box_lo.
+        subroutine new_positions(st, msg)
+            integer, intent(out) :: st
+            character(len=:), allocatable, intent(inout) :: msg
+            integer(i8), allocatable :: keys(:, :)
+            character(len=200) :: text
+            integer :: irregular
+            st = 0
+            text = ''
+            select case (mode)
+            case (REMESH_REFINE, REMESH_SAME)
+                deallocate(xn)
+                call refine_positions(dim, n, x, ids, dx, n_new, xn, keys, st, text, &
+                    algorithm_box(dx), irregular)
+                report%n_irregular = irregular
+                ! the keys travel in idn's place until fresh_ids turns them into ids
+                deallocate(idn)
+                allocate(idn(2 * n_new))
+                if (n_new > 0) idn = reshape(keys(:, 1:n_new), [2 * n_new])
+            case (REMESH_COARSEN)
+                deallocate(idn)
+                allocate(idn(n))
+                idn = ids(1:n)
+                deallocate(xn)
+                allocate(xn(3, n))
+                xn = x(:, 1:n)
+                n_new = n
+                call coarsen_step(dx, st, msg)
+                return
+            case default
+                st = 1
+                text = 'unknown mode'
+            end select
+            if (st /= 0) msg = trim(text)
+        end subroutine new_positions
+
+        !> Keep the coarsen_select set of xn/idn (spacing dxs).
+        subroutine coarsen_step(dxs, st, msg)
+            real(wp), intent(in) :: dxs
+            integer, intent(out) :: st
+            character(len=:), allocatable, intent(inout) :: msg
+            integer, allocatable :: kept(:), tag(:)
+            integer :: n_kept
+            character(len=200) :: text
+            text = ''
+            call coarsen_select(dim, n_new, xn, idn, dxs, n_kept, kept, tag, st, text, &
+                algorithm_box(dxs))
+            if (st /= 0) then
+                msg = trim(text)
+                return
+            end if
+            xn = xn(:, kept)
+            idn = idn(kept)
+            n_new = n_kept
+        end subroutine coarsen_step
+
+        !> ids for the keys in idn (all ranks take part; rank 0 holds the keys).
+        subroutine fresh_ids()
+            integer(i8), allocatable :: keys(:, :), new_ids(:)
+            integer(i8) :: next_base
+            allocate(keys(2, max(n_new, 1)), new_ids(max(n_new, 1)))
+            if (n_new > 0) keys(:, 1:n_new) = reshape(idn, [2, n_new])
+            call assign_global_ids(env, keys, n_new, base, new_ids, next_base)
+            deallocate(idn)
+            allocate(idn(n_new))
+            idn = new_ids(1:n_new)
+        end subroutine fresh_ids
+
+        !> Rank 0: fields of the new particles from the old ones (periodic images included),
+        !> positions back in the box.
+        subroutine transfer(st, msg)
+            integer, intent(out) :: st
+            character(len=:), allocatable, intent(inout) :: msg
+            real(wp), allocatable :: xo_a(:, :), xn_a(:, :), mo_a(:), vo_a(:, :), rho_a(:), &
+                eo_a(:), m_a(:), v_a(:, :), r_a(:), e_a(:)
+            integer, allocatable :: orig_o(:), orig_n(:)
+            integer :: no_a, nn_a, nmf, nvf, i
+            real(wp) :: h, mom_old(3), mom_new(3), mass_new, dv(3)
+            character(len=200) :: text
+            text = ''
+            h = max(dx, dx * remesh_spacing_factor(mode))
+            call with_images(dim, box_lo, box_hi, periodic, n, x, h * REACH, xo_a, orig_o, &
+                no_a)
+            call with_images(dim, box_lo, box_hi, periodic, n_new, xn, h * REACH, xn_a, &
+                orig_n, nn_a)
+            mo_a = m(orig_o); rho_a = rho(orig_o); eo_a = e(orig_o); vo_a = v(:, orig_o)
+            allocate(m_a(nn_a), v_a(3, nn_a), r_a(nn_a), e_a(nn_a))
+            call remesh_transfer(dim, h, no_a, xo_a, mo_a, vo_a, rho_a, eo_a, nn_a, xn_a, &
+                m_a, v_a, r_a, e_a, st, text, nmf, nvf)
+            if (st /= 0) then
+                msg = trim(text)
+                return
+            end if
+            report%n_mass_fallback = nmf
+            report%n_velocity_fallback = nvf
+            mn = m_a(1:n_new); rhon = r_a(1:n_new); en = e_a(1:n_new)
+            vn = v_a(:, 1:n_new)
+            vn(dim + 1:, :) = 0.0_wp
+            ! one uniform correction over the particles in the box: momentum as before
+            mom_old = 0.0_wp; mom_new = 0.0_wp
+            do i = 1, n
+                mom_old = mom_old + m(i) * v(:, i)
+            end do
+            do i = 1, n_new
+                mom_new = mom_new + mn(i) * vn(:, i)
+            end do
+            mass_new = sum(mn)
+            dv = 0.0_wp
+            if (mass_new > 0.0_wp) dv(1:dim) = (mom_old(1:dim) - mom_new(1:dim)) / mass_new
+            do i = 1, n_new
+                vn(1:dim, i) = vn(1:dim, i) + dv(1:dim)
+                xn(1:dim, i) = xn(1:dim, i) + box_lo(1:dim)
+            end do
+        end subroutine transfer
+
+        !> The box given to refine_positions / coarsen_select: the domain on periodic axes;
+        !> on the others a length so much larger that their images never meet a particle.
+        function algorithm_box(spacing) result(b)
+            real(wp), intent(in) :: spacing
+            real(wp) :: b(3)
+            integer :: a
+            b = 0.0_wp
+            do a = 1, dim
+                b(a) = box_hi(a) - box_lo(a)
+                if (.not. periodic(a)) b(a) = 2.0_wp * b(a) + 64.0_wp * spacing
+            end do
+        end function algorithm_box
+
+        !> Rank 0 receives every rank's fluid particles (positions relative to box_lo, in
+        !> the box on periodic axes), in rank order.
+        subroutine gather_fluid(envg, q, sel, ntot, xg, vg, mg, rg, eg, idg)
+            type(mpi_env_t), intent(in) :: envg
+            type(particles_t), intent(in) :: q
+            logical, intent(in) :: sel(:)
+            integer, intent(out) :: ntot
+            real(wp), allocatable, intent(out) :: xg(:, :), vg(:, :), mg(:), rg(:), eg(:)
+            integer(i8), allocatable, intent(out) :: idg(:)
+            integer, parameter :: nr = 9
+            integer :: nloc, ierr, r, a, j
+            integer, allocatable :: counts(:), displs(:), idx(:)
+            real(wp), allocatable :: sbuf(:, :), rbuf(:, :)
+            integer(i8), allocatable :: sid(:)
+            idx = pack([(j, j = 1, q%n_owned)], sel)
+            nloc = size(idx)
+            allocate(sbuf(nr, max(nloc, 1)), sid(max(nloc, 1)))
+            do j = 1, nloc
+                sbuf(1:3, j) = q%x(:, idx(j)) - box_lo
+                do a = 1, dim
+                    ! the particle's periodic image in [0, L)
+                    if (periodic(a)) sbuf(a, j) = sbuf(a, j) - (box_hi(a) - box_lo(a)) * &
+                        floor(sbuf(a, j) / (box_hi(a) - box_lo(a)))
+                end do
+                sbuf(dim + 1:3, j) = 0.0_wp
+                sbuf(4:6, j) = q%v(:, idx(j))
+                sbuf(7, j) = q%m(idx(j))
+                sbuf(8, j) = q%rho(idx(j))
+                sbuf(9, j) = q%e(idx(j))
+                sid(j) = q%id(idx(j))
+            end do
+            allocate(counts(envg%nranks), displs(envg%nranks))
+            call MPI_Gather(nloc, 1, MPI_INTEGER, counts, 1, MPI_INTEGER, 0, envg%comm, ierr)
+            call check_mpi(ierr, 'remesh gather counts')
+            ntot = 0
+            if (envg%rank == 0) ntot = sum(counts)
+            displs = 0
+            do r = 2, envg%nranks
+                displs(r) = displs(r - 1) + counts(r - 1)
+            end do
+            allocate(rbuf(nr, max(ntot, 1)), idg(max(ntot, 1)))
+            call MPI_Gatherv(sbuf, nr * nloc, mpi_wp, rbuf, nr * counts, nr * displs, mpi_wp, &
+                0, envg%comm, ierr)
+            call check_mpi(ierr, 'remesh gather fields')
+            call MPI_Gatherv(sid, nloc, mpi_i8, idg, counts, displs, mpi_i8, 0, envg%comm, ierr)
+            call check_mpi(ierr, 'remesh gather ids')
+            xg = rbuf(1:3, 1:ntot)
+            vg = rbuf(4:6, 1:ntot)
+            mg = rbuf(7, 1:ntot)
+            rg = rbuf(8, 1:ntot)
+            eg = rbuf(9, 1:ntot)
+            idg = idg(1:ntot)
+        end subroutine gather_fluid
+    end subroutine remesh_fluid
+
+    !> y(:, 1:ny): the points of xs(:, 1:ns) (relative to box_lo) followed by their images
+    !> on the periodic axes (any combination of shifts by whole box lengths) within `dist` of
+    !> the box [0, L); orig(k): the point that point k copies.
+    subroutine with_images(dim, box_lo, box_hi, periodic, ns, xs, dist, y, orig, ny)
+        integer, intent(in) :: dim, ns
+        real(wp), intent(in) :: box_lo(3), box_hi(3), xs(:, :), dist
+        logical, intent(in) :: periodic(3)
+        real(wp), allocatable, intent(out) :: y(:, :)
+        integer, allocatable, intent(out) :: orig(:)
+        integer, intent(out) :: ny
+        integer :: kmax(3), s(3), i, a, cap, s1, s2, s3
+        real(wp) :: len_(3), z(3)
+        real(wp), allocatable :: yt(:, :)
+        integer, allocatable :: ot(:)
+        len_ = 1.0_wp
+        kmax = 0
+        do a = 1, dim
+            len_(a) = box_hi(a) - box_lo(a)
+            if (periodic(a)) kmax(a) = ceiling(dist / len_(a))
+        end do
+        cap = max(ns, 1) * product(2 * kmax + 1)
+        allocate(y(3, cap), orig(cap))
+        ny = ns
+        y(:, 1:ns) = xs(:, 1:ns)
+        orig(1:ns) = [(i, i = 1, ns)]
+        do s3 = -kmax(3), kmax(3)
+            do s2 = -kmax(2), kmax(2)
+                do s1 = -kmax(1), kmax(1)
+                    s = [s1, s2, s3]
+                    if (all(s == 0)) cycle
+                    do i = 1, ns
+                        z = xs(:, i) + real(s, wp) * len_
+                        z(dim + 1:) = 0.0_wp
+                        if (any(z(1:dim) < -dist .or. z(1:dim) >= len_(1:dim) + dist)) cycle
+                        ny = ny + 1
+                        y(:, ny) = z
+                        orig(ny) = i
+                    end do
+                end do
+            end do
+        end do
+        allocate(yt(3, ny), ot(ny))
+        yt = y(:, 1:ny)
+        ot = orig(1:ny)
+        call move_alloc(yt, y)
+        call move_alloc(ot, orig)
+    end subroutine with_images
+
+    !> Local mass and momentum of the selected owned particles: (m, m vx, m vy, m vz).
+    subroutine fluid_totals(p, sel, totals)
+        type(particles_t), intent(in) :: p
+        logical, intent(in) :: sel(:)
+        real(wp), intent(out) :: totals(4)
+        integer :: i
+        totals = 0.0_wp
+        do i = 1, size(sel)
+            if (.not. sel(i)) cycle
+            totals(1) = totals(1) + p%m(i)
+            totals(2:4) = totals(2:4) + p%m(i) * p%v(:, i)
+        end do
+    end subroutine fluid_totals
+
+    pure subroutine unpack_totals(totals, mass, momentum)
+        real(wp), intent(in) :: totals(4)
+        real(wp), intent(out) :: mass, momentum(3)
+        mass = totals(1)
+        momentum = totals(2:4)
+    end subroutine unpack_totals
+end module sph_remesh_driver

@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# Regression: run Poiseuille at L/20 briefly, refine its checkpoint offline (sphremesh
+# --remesh refine) on NP ranks and on 1 rank (identical files), continue the refined
+# checkpoint at L/40 for a few steps, and check that a restart with the old dx is refused.
+# usage: check_remesh_restart.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM COARSE.nml FINE.nml WORKDIR
+#        PYTHON COMPARER
+set -u
+mpiexec=$1 np_flag=$2 np=$3 extra=$4 program=$5 coarse=$6 fine=$7 work=$8 python=$9
+comparer=${10}
+run() { local n=$1; shift; "$mpiexec" "$np_flag" "$n" $extra "$program" "$@"; }
+fail() { echo "$1"; [ -n "${2:-}" ] && cat "$2"; exit 1; }
+rm -rf "$work" && mkdir -p "$work/fine" && cd "$work" || exit 1
+
+run "$np" "$coarse" > coarse.log 2>&1 || fail "the L/20 run failed:" coarse.log
+checkpoint=$(ls output/*_checkpoint_*.h5 | tail -1)
+run "$np" --remesh refine "$checkpoint" refined.h5 > remesh.log 2>&1 || \
+    fail "--remesh refine failed:" remesh.log
+run 1 --remesh refine "$checkpoint" refined_1.h5 > remesh_1.log 2>&1 || \
+    fail "--remesh refine on 1 rank failed:" remesh_1.log
+"$python" "$comparer" refined.h5 refined_1.h5 > compare.log 2>&1 || \
+    fail "the refined checkpoint depends on the rank count:" compare.log
+# 10 x 20 fluid particles at L/20: 39 rows of 20 at L/40 (the rows next to the walls keep
+# their old distance, see the user guide)
+grep -q "remesh refine at t = .*: fluid particles 200 -> 780, dx  5.000E-05 ->  2.500E-05 m" \
+    remesh.log || fail "unexpected counts in the remesh log:" remesh.log
+for what in mass momentum; do
+    change=$(grep "^  $what" remesh.log | sed 's/.*change[^0-9]*\([0-9.E+-]*\)).*/\1/')
+    awk -v c="$change" 'BEGIN { exit !(c + 0 < 1e-12) }' || \
+        fail "$what not conserved to 1e-12 (relative change '$change'):" remesh.log
+done
+grep -q "^  time .* s (.* us per particle)" remesh.log || fail "no cost line:" remesh.log
+
+run "$np" "$fine" --restart refined.h5 > fine.log 2>&1 || \
+    fail "the L/40 continuation failed:" fine.log
+grep -q "particles: .* real (fluid 780)" fine.log || fail "unexpected continuation:" fine.log
+# no density jump: the fluid density stays within 0.5 % of rho0 in every progress line
+awk '/\.\.[0-9]/ { split($5, r, "\\.\\."); if (r[1] < 995 || r[2] > 1005) bad = 1 }
+     END { exit bad }' fine.log || fail "density left rho0 +- 0.5 %:" fine.log
+ls fine/*_checkpoint_*.h5 > /dev/null 2>&1 || fail "the continuation wrote no checkpoint"
+
+# the L/20 input cannot continue the L/40 checkpoint
+if run "$np" "$coarse" --restart refined.h5 > wrong.log 2>&1; then
+    fail "a restart with the old dx was accepted:" wrong.log
+fi
+grep -q "the checkpoint's particles have spacing dx" wrong.log || \
+    fail "no dx message:" wrong.log
+echo "refined $checkpoint, continued at L/40: $(grep -o 'relative L2 = *[0-9.]* %' fine.log)"
