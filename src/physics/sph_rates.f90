@@ -169,12 +169,20 @@ contains
         type(neighbour_list_t), intent(in) :: nl
         type(solids_t), intent(in), optional :: solids   !< for Morris walls of curved bodies
         real(wp), intent(inout), optional :: wall_forces(:, :, :)
-        integer :: i, k, j, a, s
+        integer :: i, k, j, a, s, m, n_near
         real(wp) :: d(3), r2, r, dwdr, grad(3), vij(3), vvisc(3), pterm, coeff, beta
         real(wp) :: drho, dv(3), de, rho_i, p_i, mu_i, q, sterm(3), eps_i(3, 3), eps_j(3, 3)
         real(wp) :: support2
+        integer, allocatable :: near(:)   !< the neighbours of i within the support
+        real(wp), allocatable :: r_near(:), r2_near(:), dwdr_near(:)
+        logical :: repulsive_walls, morris_walls
 
         support2 = phys%kernel%support**2
+        repulsive_walls = phys%walls == WALLS_REPULSIVE .or. phys%walls == WALLS_REPULSIVE_MIRROR
+        morris_walls = phys%walls == WALLS_MORRIS
+        k = 0
+        if (p%n_owned > 0) k = maxval(nl%start(2:p%n_owned + 1) - nl%start(1:p%n_owned))
+        allocate(near(k), r_near(k), r2_near(k), dwdr_near(k))
 
         do i = 1, p%n_owned
             p%drhodt(i) = 0.0_wp
@@ -195,13 +203,25 @@ contains
             drho = 0.0_wp
             dv = 0.0_wp
             de = 0.0_wp
+            ! the pairs within the support, then dW/dr of all of them in one kernel call
+            n_near = 0
             do k = nl%start(i), nl%start(i + 1) - 1
                 j = nl%index(k)
                 d = p%x(:, i) - p%x(:, j)
                 r2 = d(1)**2 + d(2)**2 + d(3)**2
                 if (r2 <= 0.0_wp .or. r2 >= support2) cycle
-                r = sqrt(r2)
-                if (repulsive_only(phys, p%kind(j))) then
+                n_near = n_near + 1
+                near(n_near) = j
+                r2_near(n_near) = r2
+                r_near(n_near) = sqrt(r2)
+            end do
+            call phys%kernel%dwdr_many(r_near(1:n_near), dwdr_near(1:n_near))
+            do m = 1, n_near
+                j = near(m)
+                d = p%x(:, i) - p%x(:, j)
+                r2 = r2_near(m)
+                r = r_near(m)
+                if (repulsive_walls .and. p%kind(j) == KIND_WALL) then
                     if (r < phys%repulsive_r0) then
                         q = phys%repulsive_r0 / r
                         dv = dv + phys%repulsive_d * (q**phys%repulsive_n1 - q**phys%repulsive_n2) &
@@ -213,7 +233,7 @@ contains
                     end if
                     cycle
                 end if
-                dwdr = phys%kernel%dwdr(r)
+                dwdr = dwdr_near(m)
                 grad = d * (dwdr / r)
                 vij = p%v(:, i) - p%v(:, j)
                 drho = drho + p%m(j) * dot_product(vij, grad)
@@ -226,7 +246,7 @@ contains
                 select case (phys%viscosity)
                 case (VISCOSITY_MORRIS)
                     vvisc = vij
-                    if (p%kind(j) == KIND_WALL .and. phys%walls == WALLS_MORRIS) then
+                    if (morris_walls .and. p%kind(j) == KIND_WALL) then
                         beta = wall_beta(phys, p, i, j, solids)
                         vvisc = beta * vij
                     end if
