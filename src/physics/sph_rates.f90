@@ -170,11 +170,12 @@ contains
         type(solids_t), intent(in), optional :: solids   !< for Morris walls of curved bodies
         real(wp), intent(inout), optional :: wall_forces(:, :, :)
         integer :: i, k, j, a, s, m, n_near
-        real(wp) :: d(3), r2, r, dwdr, grad(3), vij(3), vvisc(3), pterm, coeff, beta
+        real(wp) :: d(3), r2, r, grad(3), vij(3), vvisc(3), pterm, coeff, beta
         real(wp) :: drho, dv(3), de, rho_i, p_i, mu_i, q, sterm(3), eps_i(3, 3), eps_j(3, 3)
         real(wp) :: support2
         integer, allocatable :: near(:)   !< the neighbours of i within the support
-        real(wp), allocatable :: r_near(:), r2_near(:), dwdr_near(:)
+        real(wp), allocatable :: r_near(:), r2_near(:), dwdr_near(:), grad_near(:), visc_near(:)
+        real(wp), allocatable :: p_rho2(:), inv_rho(:)   !< p/rho^2 and 1/rho of all particles
         logical :: repulsive_walls, morris_walls
 
         support2 = phys%kernel%support**2
@@ -182,7 +183,12 @@ contains
         morris_walls = phys%walls == WALLS_MORRIS
         k = 0
         if (p%n_owned > 0) k = maxval(nl%start(2:p%n_owned + 1) - nl%start(1:p%n_owned))
-        allocate(near(k), r_near(k), r2_near(k), dwdr_near(k))
+        allocate(near(k), r_near(k), r2_near(k), dwdr_near(k), grad_near(k), visc_near(k))
+        allocate(p_rho2(p%n_total), inv_rho(p%n_total))
+        do j = 1, p%n_total
+            p_rho2(j) = p%p(j) / p%rho(j)**2
+            inv_rho(j) = 1.0_wp / p%rho(j)
+        end do
 
         do i = 1, p%n_owned
             p%drhodt(i) = 0.0_wp
@@ -216,6 +222,11 @@ contains
                 r_near(n_near) = sqrt(r2)
             end do
             call phys%kernel%dwdr_many(r_near(1:n_near), dwdr_near(1:n_near))
+            ! grad W = d * grad_near; Morris' viscous factor r dW/dr / (r^2 + eta^2)
+            do m = 1, n_near
+                grad_near(m) = dwdr_near(m) / r_near(m)
+                visc_near(m) = r_near(m) * dwdr_near(m) / (r2_near(m) + phys%eta2)
+            end do
             do m = 1, n_near
                 j = near(m)
                 d = p%x(:, i) - p%x(:, j)
@@ -233,11 +244,10 @@ contains
                     end if
                     cycle
                 end if
-                dwdr = dwdr_near(m)
-                grad = d * (dwdr / r)
+                grad = d * grad_near(m)
                 vij = p%v(:, i) - p%v(:, j)
                 drho = drho + p%m(j) * dot_product(vij, grad)
-                pterm = p_i + p%p(j) / p%rho(j)**2
+                pterm = p_i + p_rho2(j)
                 dv = dv - p%m(j) * pterm * grad
                 de = de + 0.5_wp * p%m(j) * pterm * dot_product(vij, grad)
                 s = force_slot(j)
@@ -250,9 +260,9 @@ contains
                         beta = wall_beta(phys, p, i, j, solids)
                         vvisc = beta * vij
                     end if
-                    ! (mu_i + mu_j) / (rho_i rho_j) with mu = rho nu
-                    coeff = p%m(j) * phys%nu * phys%viscous_scale * (rho_i + p%rho(j)) &
-                        / (rho_i * p%rho(j)) * r * dwdr / (r2 + phys%eta2)
+                    ! (mu_i + mu_j) / (rho_i rho_j) = nu (1/rho_i + 1/rho_j) with mu = rho nu
+                    coeff = p%m(j) * phys%nu * phys%viscous_scale * (inv_rho(i) + inv_rho(j)) &
+                        * visc_near(m)
                     dv = dv + coeff * vvisc
                     de = de - 0.5_wp * coeff * dot_product(vvisc, vvisc)
                     if (s > 0) wall_forces(:, 2, s) = wall_forces(:, 2, s) - p%m(i) * coeff * &
