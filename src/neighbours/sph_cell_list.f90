@@ -65,8 +65,8 @@ contains
                         row = grid%ncell(1) * ((b - 1) + grid%ncell(2) * (cz - 1))
                         first = grid%cell_start(row + lo(1))
                         last = grid%cell_start(row + hi(1) + 1) - 1
-                        if (pairs + last - first + 2 > size(nl%index)) &
-                            call grow(nl%index, pairs + last - first + 2)
+                        if (pairs + last - first + 2 > size(nl%index)) call grow(nl%index, &
+                            max(pairs + last - first + 2, projected_pairs(pairs, i, n_query)))
                         do k = first, last
                             j = grid%sorted(k)
                             d1 = xi(1) - x(1, j)
@@ -84,14 +84,22 @@ contains
         nl%n_pairs = pairs
     end subroutine build_neighbour_list
 
+    !> array holds `needed` entries, the first ones kept.
     subroutine grow(array, needed)
         integer, allocatable, intent(inout) :: array(:)
         integer, intent(in) :: needed
         integer, allocatable :: bigger(:)
-        allocate(bigger(max(needed, 2 * size(array))))
+        allocate(bigger(needed))
         bigger(1:size(array)) = array
         call move_alloc(bigger, array)
     end subroutine grow
+
+    !> Room for all rows, projected from the `pairs` of the rows before query i, plus 10 %.
+    pure integer function projected_pairs(pairs, i, n_query)
+        integer, intent(in) :: pairs, i, n_query
+        projected_pairs = int(min(1.1_wp * real(pairs, wp) / max(i - 1, 1) * n_query + 64.0_wp, &
+            real(huge(1), wp)))
+    end function projected_pairs
 
     !> Stable counting sort of particles into cells of at least `cell_size` covering their
     !> bounding box. The grid's arrays are reused when they are large enough.
