@@ -26,7 +26,7 @@ module sph_stepper
         compute_rates, extrapolate_wall_density, local_max_speed, local_max_acceleration
     use sph_shifting, only: shifting_diffusion, shift_particles
     use sph_timestep, only: timestep_limits_t, timestep_limits
-    use sph_integrator, only: save_step_start, advance
+    use sph_integrator, only: save_step_start, advance, max_step_displacement
     use sph_initial, only: create_lattice_particles
     use sph_particle_file, only: read_initial_particles
     use sph_global_ids, only: id_order
@@ -69,6 +69,9 @@ module sph_stepper
         integer(i8) :: step = 0
         real(wp) :: skin = 0.0_wp          !< ghost skin: covers any motion within one step
         real(wp) :: list_skin = 0.0_wp     !< neighbour-list skin: lets a list serve both stages
+        !> bound on how far any particle has moved since the last migration and halo build
+        !> (the sum of the steps' largest displacements, over all ranks)
+        real(wp) :: drift = 0.0_wp
         type(timestep_limits_t) :: last_limits
         real(wp) :: first_dt = 0.0_wp      !< the run's first time step (health check)
         !> force of the fluid on each solid from the last rates: (xyz, pressure|viscous, solid),
@@ -118,7 +121,8 @@ contains
         call domain_create(sim%domain, env, cfg%domain%dimension, cfg%domain%box_lo, &
             cfg%domain%box_hi, periodic)
         call particles_init(sim%p, 1024, cfg%domain%dimension)
-        ! ghosts reach the support plus a skin that covers any motion within one step
+        ! ghosts reach the support plus a skin that covers any motion within one step, plus
+        ! the neighbour-list skin that particles may use up over the steps between rebuilds
         sim%skin = 2.0_wp * cfg%numerics%cfl * sim%phys%kernel%h
         sim%list_skin = 0.1_wp * sim%phys%kernel%h
         sim%time = 0.0_wp
@@ -153,7 +157,7 @@ contains
         allocate(order(sim%p%n_owned))
         call id_order(sim%p%id, sim%p%n_owned, order)
         call particles_gather(sim%p, order)
-        call halo_setup(sim%halo, sim%domain, sim%phys%kernel%support + sim%skin)
+        call halo_setup(sim%halo, sim%domain, halo_reach(sim))
         call simulation_prepare_neighbours(sim, env)
         call log_setup(sim, env)
     end subroutine simulation_setup
@@ -199,7 +203,7 @@ contains
             call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
             call migrate_particles(sim%domain, env, sim%p)
         end if
-        call halo_setup(sim%halo, sim%domain, sim%phys%kernel%support + sim%skin)
+        call halo_setup(sim%halo, sim%domain, halo_reach(sim))
         call simulation_prepare_neighbours(sim, env)
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
         write(line, '(a,es12.5,a,i0,a)') 'continuing from ' // path // ' at t = ', sim%time, &
@@ -237,6 +241,7 @@ contains
         type(mpi_env_t), intent(in) :: env
         character(len=:), allocatable :: path, errmsg
         integer :: stat
+        call synchronise(sim, env)
         path = checkpoint_filename(trim(sim%cfg%output%output_dir), trim(sim%cfg%run%case_name), &
             sim%step)
         call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, &
@@ -251,6 +256,12 @@ contains
         end do
         call log_info('checkpoint: ' // path)
     end subroutine simulation_write_checkpoint
+
+    !> How far ghosts reach beyond a rank's region (see migrate_and_rebuild).
+    pure real(wp) function halo_reach(sim)
+        type(simulation_t), intent(in) :: sim
+        halo_reach = sim%phys%kernel%support + sim%skin + sim%list_skin
+    end function halo_reach
 
     subroutine simulation_free(sim)
         type(simulation_t), intent(inout) :: sim
@@ -270,7 +281,20 @@ contains
         sim%p%n_total = sim%p%n_owned
         call halo_build(sim%halo, sim%domain, env, sim%p)
         call refresh_neighbours(sim)
+        sim%drift = 0.0_wp
     end subroutine simulation_prepare_neighbours
+
+    !> Particles back in their owners' regions (periodic positions wrapped) and everything
+    !> rebuilt, unless nothing moved since the last rebuild: before a snapshot, a checkpoint
+    !> (a restart then continues bit for bit) or a rebalance (collective).
+    subroutine synchronise(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        if (sim%drift <= 0.0_wp) return
+        call migrate_particles(sim%domain, env, sim%p)
+        call simulation_prepare_neighbours(sim, env)
+        call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+    end subroutine synchronise
 
     !> Mirrors and the neighbour list for the current positions. The list holds pairs within
     !> support + list_skin, so it stays complete while no pair closes in by more than the skin.
@@ -497,16 +521,16 @@ contains
     end subroutine refresh_halo
 
     !> Mirrors and the neighbour list for the predicted positions. A particle moves at most
-    !> (vmax + amax dt/2) dt/2 in the half step; the list stays valid while two particles
-    !> cannot close in by more than the skin. Mirrors change with the ghosts, so mirror walls
-    !> always rebuild.
+    !> (vmax + amax dt/2) dt/2 in the half step, after the drift since the list was built;
+    !> the list stays valid while two particles cannot close in by more than the skin.
+    !> Mirrors change with the ghosts, so mirror walls always rebuild.
     subroutine prepare_boundaries(sim, dt)
         type(simulation_t), intent(inout) :: sim
         real(wp), intent(in) :: dt
         real(wp) :: max_shift
         max_shift = (sim%last_limits%max_speed + 0.5_wp * dt * sim%last_limits%max_accel) &
             * 0.5_wp * dt
-        if (2.0_wp * max_shift >= sim%list_skin .or. uses_mirrors(sim) .or. &
+        if (2.0_wp * (sim%drift + max_shift) >= sim%list_skin .or. uses_mirrors(sim) .or. &
             sim%p%n_total /= sim%p%n_owned + sim%p%n_ghost) then
             call refresh_neighbours(sim)
         end if
@@ -538,13 +562,24 @@ contains
             shifting_diffusion(sim%phys, sim%last_limits%max_speed, dt))
     end subroutine shift
 
-    !> Particles that left go to their new owner; ghosts, mirrors, the neighbour list and
-    !> the pressure are rebuilt for the new positions.
+    !> Verlet-list reuse: while no two particles can have closed in by more than half the
+    !> list skin since the last rebuild (2 drift < list_skin / 2), the ghosts only take their
+    !> owners' new state and the neighbour list is kept; particles stay with their rank even
+    !> if they left its region. Otherwise particles that left go to their new owner and the
+    !> ghosts, mirrors and the list are rebuilt (cell order, wrapped periodic positions).
+    !> The halo reaches support + skin + list_skin, so its ghosts cover every pair within the
+    !> support while 2 drift + the motion of one step stays within skin + list_skin.
     subroutine migrate_and_rebuild(sim, env)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
-        call migrate_particles(sim%domain, env, sim%p)
-        call simulation_prepare_neighbours(sim, env)
+        sim%drift = sim%drift + global_max(env, max_step_displacement(sim%p))
+        if (2.0_wp * sim%drift < 0.5_wp * sim%list_skin) then
+            call halo_refresh(sim%halo, env, sim%p, HALO_MOVE)
+            if (uses_mirrors(sim)) call refresh_neighbours(sim)
+        else
+            call migrate_particles(sim%domain, env, sim%p)
+            call simulation_prepare_neighbours(sim, env)
+        end if
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
     end subroutine migrate_and_rebuild
 
@@ -802,8 +837,9 @@ contains
         if (mod(sim%step, int(sim%cfg%parallel%rebalance_check_interval, i8)) /= 0) return
         before = domain_imbalance(env, sim%p%n_owned)
         if (before <= sim%cfg%parallel%rebalance_threshold) return
+        call synchronise(sim, env)
         call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
-        call halo_setup(sim%halo, sim%domain, sim%halo%reach)
+        call halo_setup(sim%halo, sim%domain, halo_reach(sim))
         call migrate_particles(sim%domain, env, sim%p)
         call simulation_prepare_neighbours(sim, env)
         after = domain_imbalance(env, sim%p%n_owned)
@@ -837,6 +873,7 @@ contains
         integer(i8) :: rows
         real(wp) :: error
         character(len=160) :: line
+        call synchronise(sim, env)
         path = snapshot_filename(trim(sim%cfg%output%output_dir), trim(sim%cfg%run%case_name), &
             sim%step)
         call write_snapshot(env, sim%p, path, sim%time, sim%step, sim%cfg%domain%dimension, &

@@ -9,7 +9,7 @@ module sph_integrator
     use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL
     implicit none
     private
-    public :: save_step_start, advance
+    public :: save_step_start, advance, max_step_displacement
 
 contains
 
@@ -41,4 +41,14 @@ contains
             end select
         end do
     end subroutine advance
+
+    !> Largest distance an owned particle has moved since save_step_start.
+    pure real(wp) function max_step_displacement(p) result(largest)
+        type(particles_t), intent(in) :: p
+        integer :: i
+        largest = 0.0_wp
+        do i = 1, p%n_owned
+            largest = max(largest, norm2(p%x(:, i) - p%x_old(:, i)))
+        end do
+    end function max_step_displacement
 end module sph_integrator

@@ -3,6 +3,8 @@
 !>   Wendland C2 (support 2h; the 1-D member is the psi_{3,1} function).
 !> The scalar functions are pure elemental with no module state; kernel_t caches the
 !> per-run constants (sigma/h^d) for the particle loops. Chosen at run time by name.
+!> kernel_t%dwdr_many evaluates a batch of distances (one particle's neighbours) with the
+!> kernel chosen once, so the pair loops pay no call or kernel choice per pair.
 module sph_kernel
     use sph_kinds, only: wp
     implicit none
@@ -26,6 +28,7 @@ module sph_kernel
     contains
         procedure :: w => kernel_t_w
         procedure :: dwdr => kernel_t_dwdr
+        procedure :: dwdr_many => kernel_t_dwdr_many
     end type kernel_t
 
 contains
@@ -144,11 +147,7 @@ contains
         shape_derivative = 0.0_wp
         select case (id)
         case (KERNEL_CUBIC)
-            if (q < 1.0_wp) then
-                shape_derivative = -3.0_wp * q + 2.25_wp * q**2
-            else if (q < 2.0_wp) then
-                shape_derivative = -0.75_wp * (2.0_wp - q)**2
-            end if
+            shape_derivative = cubic_derivative(q)
         case (KERNEL_QUINTIC)
             if (q < 3.0_wp) shape_derivative = -5.0_wp * (3.0_wp - q)**4
             if (q < 2.0_wp) shape_derivative = shape_derivative + 30.0_wp * (2.0_wp - q)**4
@@ -165,6 +164,17 @@ contains
             end if
         end select
     end function shape_derivative
+
+    !> df/dq of the cubic spline.
+    pure elemental real(wp) function cubic_derivative(q)
+        real(wp), intent(in) :: q
+        cubic_derivative = 0.0_wp
+        if (q < 1.0_wp) then
+            cubic_derivative = -3.0_wp * q + 2.25_wp * q**2
+        else if (q < 2.0_wp) then
+            cubic_derivative = -0.75_wp * (2.0_wp - q)**2
+        end if
+    end function cubic_derivative
 
     !> W(r, h) for a kernel id in dim dimensions.
     pure elemental real(wp) function kernel_w(id, dim, r, h)
@@ -191,4 +201,22 @@ contains
         real(wp), intent(in) :: r
         kernel_t_dwdr = self%dw_norm * shape_derivative(self%id, self%dim, r * self%inv_h)
     end function kernel_t_dwdr
+
+    !> dwdr(k) = dW/dr (r(k)) for k = 1..size(r), the same values as self%dwdr(r(k)).
+    pure subroutine kernel_t_dwdr_many(self, r, dwdr)
+        class(kernel_t), intent(in) :: self
+        real(wp), intent(in) :: r(:)
+        real(wp), intent(out) :: dwdr(:)
+        integer :: k
+        select case (self%id)
+        case (KERNEL_CUBIC)
+            do k = 1, size(r)
+                dwdr(k) = self%dw_norm * cubic_derivative(r(k) * self%inv_h)
+            end do
+        case default
+            do k = 1, size(r)
+                dwdr(k) = self%dw_norm * shape_derivative(self%id, self%dim, r(k) * self%inv_h)
+            end do
+        end select
+    end subroutine kernel_t_dwdr_many
 end module sph_kernel

@@ -8,15 +8,7 @@ module sph_cell_list
     private
     public :: neighbour_list_t, build_neighbour_list, brute_force_neighbours, cell_sort_order
 
-    !> Compressed rows: the neighbours of i are index(start(i) : start(i+1)-1).
-    type :: neighbour_list_t
-        integer :: n_query = 0
-        integer :: n_pairs = 0
-        integer, allocatable :: start(:)
-        integer, allocatable :: index(:)
-    end type neighbour_list_t
-
-    !> The binning of one build, kept only while the list is built.
+    !> The binning of one build: kept with the list so a rebuild reuses its storage.
     type :: cell_grid_t
         integer :: dim = 2
         integer :: ncell(3) = 1
@@ -27,87 +19,107 @@ module sph_cell_list
         integer, allocatable :: cell_of(:)      !< linear cell index of each particle
     end type cell_grid_t
 
+    !> Compressed rows: the neighbours of i are index(start(i) : start(i+1)-1).
+    type :: neighbour_list_t
+        integer :: n_query = 0
+        integer :: n_pairs = 0
+        integer, allocatable :: start(:)
+        integer, allocatable :: index(:)
+        type(cell_grid_t) :: grid             !< binning scratch of the last build
+    end type neighbour_list_t
+
 contains
 
     !> Neighbours within `radius` of the first n_query particles among the first n_total.
+    !> Each query scans its 3^dim cells row by row: the cells of a row are consecutive in the
+    !> cell order, so a row is one run of `sorted`. Rows and cells are visited in the order
+    !> (z, y, x) and particles within a cell by index, so the list order is reproducible.
     subroutine build_neighbour_list(x, n_total, n_query, dim, radius, nl)
         real(wp), intent(in) :: x(:, :)
         integer, intent(in) :: n_total, n_query, dim
         real(wp), intent(in) :: radius
         type(neighbour_list_t), intent(inout) :: nl
-        type(cell_grid_t) :: grid
-        integer :: i, j, k, c(3), lo(3), hi(3), a, b, cz, cell, pairs, capacity
-        real(wp) :: r2max, d(3)
+        integer :: i, j, k, c(3), lo(3), hi(3), b, cz, row, first, last, pairs
+        real(wp) :: r2max, xi(3), d1, d2, d3
 
         nl%n_query = n_query
         if (allocated(nl%start)) then
             if (size(nl%start) < n_query + 1) deallocate(nl%start)
         end if
         if (.not. allocated(nl%start)) allocate(nl%start(max(n_query + 1, 1)))
-        capacity = 0
-        if (allocated(nl%index)) capacity = size(nl%index)
-        if (capacity < 1) then
-            capacity = max(64, 40 * n_query)
-            if (allocated(nl%index)) deallocate(nl%index)
-            allocate(nl%index(capacity))
-        end if
+        if (.not. allocated(nl%index)) allocate(nl%index(max(64, 40 * n_query)))
 
-        call bin_particles(x, n_total, dim, radius, grid)
-        r2max = radius * radius
-        pairs = 0
-        do i = 1, n_query
-            nl%start(i) = pairs + 1
-            c = cell_coords(grid, x(:, i))
-            lo = 1; hi = 1
-            lo(1:dim) = max(c(1:dim) - 1, 1)
-            hi(1:dim) = min(c(1:dim) + 1, grid%ncell(1:dim))
-            do cz = lo(3), hi(3)
-                do b = lo(2), hi(2)
-                    do a = lo(1), hi(1)
-                        cell = a + grid%ncell(1) * ((b - 1) + grid%ncell(2) * (cz - 1))
-                        do k = grid%cell_start(cell), grid%cell_start(cell + 1) - 1
+        call bin_particles(x, n_total, dim, radius, nl%grid)
+        associate (grid => nl%grid)
+            r2max = radius * radius
+            pairs = 0
+            do i = 1, n_query
+                nl%start(i) = pairs + 1
+                xi = x(:, i)
+                c = cell_coords(grid, xi)
+                lo = 1; hi = 1
+                lo(1:dim) = max(c(1:dim) - 1, 1)
+                hi(1:dim) = min(c(1:dim) + 1, grid%ncell(1:dim))
+                do cz = lo(3), hi(3)
+                    do b = lo(2), hi(2)
+                        row = grid%ncell(1) * ((b - 1) + grid%ncell(2) * (cz - 1))
+                        first = grid%cell_start(row + lo(1))
+                        last = grid%cell_start(row + hi(1) + 1) - 1
+                        if (pairs + last - first + 2 > size(nl%index)) call grow(nl%index, &
+                            max(pairs + last - first + 2, projected_pairs(pairs, i, n_query)))
+                        do k = first, last
                             j = grid%sorted(k)
-                            if (j == i) cycle
-                            d = x(:, i) - x(:, j)
-                            if (d(1)**2 + d(2)**2 + d(3)**2 < r2max) then
-                                pairs = pairs + 1
-                                if (pairs > size(nl%index)) call grow(nl%index, pairs)
-                                nl%index(pairs) = j
-                            end if
+                            d1 = xi(1) - x(1, j)
+                            d2 = xi(2) - x(2, j)
+                            d3 = xi(3) - x(3, j)
+                            ! written unconditionally, kept by counting it (no branch)
+                            nl%index(pairs + 1) = j
+                            if (d1**2 + d2**2 + d3**2 < r2max .and. j /= i) pairs = pairs + 1
                         end do
                     end do
                 end do
             end do
-        end do
+        end associate
         nl%start(n_query + 1) = pairs + 1
         nl%n_pairs = pairs
     end subroutine build_neighbour_list
 
+    !> array holds `needed` entries, the first ones kept.
     subroutine grow(array, needed)
         integer, allocatable, intent(inout) :: array(:)
         integer, intent(in) :: needed
         integer, allocatable :: bigger(:)
-        allocate(bigger(max(needed, 2 * size(array))))
+        allocate(bigger(needed))
         bigger(1:size(array)) = array
         call move_alloc(bigger, array)
     end subroutine grow
 
-    !> Counting sort of particles into cells of at least `cell_size` covering their bounding box.
+    !> Room for all rows, projected from the `pairs` of the rows before query i, plus 10 %.
+    pure integer function projected_pairs(pairs, i, n_query)
+        integer, intent(in) :: pairs, i, n_query
+        projected_pairs = int(min(1.1_wp * real(pairs, wp) / max(i - 1, 1) * n_query + 64.0_wp, &
+            real(huge(1), wp)))
+    end function projected_pairs
+
+    !> Stable counting sort of particles into cells of at least `cell_size` covering their
+    !> bounding box. The grid's arrays are reused when they are large enough.
     subroutine bin_particles(x, n, dim, cell_size, grid)
         real(wp), intent(in) :: x(:, :)
         integer, intent(in) :: n, dim
         real(wp), intent(in) :: cell_size
-        type(cell_grid_t), intent(out) :: grid
+        type(cell_grid_t), intent(inout) :: grid
         real(wp) :: lo(3), hi(3), size_used
         integer :: i, ncells, cell
         integer(8) :: estimate
-        integer, allocatable :: fill(:)
 
         grid%dim = dim
         lo = 0.0_wp; hi = 0.0_wp
         if (n > 0) then
-            lo = minval(x(:, 1:n), dim=2)
-            hi = maxval(x(:, 1:n), dim=2)
+            lo = x(:, 1); hi = x(:, 1)
+            do i = 2, n
+                lo = min(lo, x(:, i))
+                hi = max(hi, x(:, i))
+            end do
         end if
         ! a stray far-away particle must not make the grid huge: cap cells at ~4 per particle
         size_used = cell_size
@@ -121,25 +133,40 @@ contains
         grid%origin = lo
         grid%inv_size = 1.0_wp / size_used
         ncells = int(estimate)
-        allocate(grid%cell_start(ncells + 1), grid%sorted(max(n, 1)), grid%cell_of(max(n, 1)))
-        allocate(fill(ncells))
-        grid%cell_start = 0
+        call reserve(grid%cell_start, ncells + 1)
+        call reserve(grid%sorted, n)
+        call reserve(grid%cell_of, n)
+        grid%cell_start(1:ncells + 1) = 0
         do i = 1, n
             cell = linear_cell(grid, cell_coords(grid, x(:, i)))
             grid%cell_of(i) = cell
             grid%cell_start(cell + 1) = grid%cell_start(cell + 1) + 1
         end do
+        ! cell_start(c) is the first slot of cell c; it serves as c's fill cursor, which
+        ! ends at the first slot of c + 1, and is then shifted back by one cell
         grid%cell_start(1) = 1
         do cell = 1, ncells
             grid%cell_start(cell + 1) = grid%cell_start(cell + 1) + grid%cell_start(cell)
         end do
-        fill = grid%cell_start(1:ncells)
         do i = 1, n
             cell = grid%cell_of(i)
-            grid%sorted(fill(cell)) = i
-            fill(cell) = fill(cell) + 1
+            grid%sorted(grid%cell_start(cell)) = i
+            grid%cell_start(cell) = grid%cell_start(cell) + 1
         end do
+        grid%cell_start(2:ncells + 1) = grid%cell_start(1:ncells)
+        grid%cell_start(1) = 1
     end subroutine bin_particles
+
+    !> array holds at least n entries (contents not kept when it grows).
+    subroutine reserve(array, n)
+        integer, allocatable, intent(inout) :: array(:)
+        integer, intent(in) :: n
+        if (allocated(array)) then
+            if (size(array) >= max(n, 1)) return
+            deallocate(array)
+        end if
+        allocate(array(max(n, 1)))
+    end subroutine reserve
 
     pure function cell_coords(grid, xi) result(c)
         type(cell_grid_t), intent(in) :: grid

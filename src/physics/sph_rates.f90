@@ -209,12 +209,26 @@ contains
         type(neighbour_list_t), intent(in) :: nl
         type(solids_t), intent(in), optional :: solids   !< for Morris walls of curved bodies
         real(wp), intent(inout), optional :: wall_forces(:, :, :)
-        integer :: i, k, j, a, s
-        real(wp) :: d(3), r2, r, dwdr, grad(3), vij(3), vvisc(3), pterm, coeff, beta
+        integer :: i, k, j, a, s, m, n_near
+        real(wp) :: d(3), r2, r, grad(3), vij(3), vvisc(3), pterm, coeff, beta
         real(wp) :: drho, dv(3), de, rho_i, p_i, mu_i, q, sterm(3), eps_i(3, 3), eps_j(3, 3)
         real(wp) :: support2
+        integer, allocatable :: near(:)   !< the neighbours of i within the support
+        real(wp), allocatable :: r_near(:), r2_near(:), dwdr_near(:), grad_near(:), visc_near(:)
+        real(wp), allocatable :: p_rho2(:), inv_rho(:)   !< p/rho^2 and 1/rho of all particles
+        logical :: repulsive_walls, morris_walls
 
         support2 = phys%kernel%support**2
+        repulsive_walls = phys%walls == WALLS_REPULSIVE .or. phys%walls == WALLS_REPULSIVE_MIRROR
+        morris_walls = phys%walls == WALLS_MORRIS
+        k = 0
+        if (p%n_owned > 0) k = maxval(nl%start(2:p%n_owned + 1) - nl%start(1:p%n_owned))
+        allocate(near(k), r_near(k), r2_near(k), dwdr_near(k), grad_near(k), visc_near(k))
+        allocate(p_rho2(p%n_total), inv_rho(p%n_total))
+        do j = 1, p%n_total
+            p_rho2(j) = p%p(j) / p%rho(j)**2
+            inv_rho(j) = 1.0_wp / p%rho(j)
+        end do
 
         do i = 1, p%n_owned
             p%drhodt(i) = 0.0_wp
@@ -236,13 +250,30 @@ contains
             drho = 0.0_wp
             dv = 0.0_wp
             de = 0.0_wp
+            ! the pairs within the support, then dW/dr of all of them in one kernel call
+            n_near = 0
             do k = nl%start(i), nl%start(i + 1) - 1
                 j = nl%index(k)
                 d = p%x(:, i) - p%x(:, j)
                 r2 = d(1)**2 + d(2)**2 + d(3)**2
                 if (r2 <= 0.0_wp .or. r2 >= support2) cycle
-                r = sqrt(r2)
-                if (repulsive_only(phys, p%kind(j))) then
+                n_near = n_near + 1
+                near(n_near) = j
+                r2_near(n_near) = r2
+                r_near(n_near) = sqrt(r2)
+            end do
+            call phys%kernel%dwdr_many(r_near(1:n_near), dwdr_near(1:n_near))
+            ! grad W = d * grad_near; Morris' viscous factor r dW/dr / (r^2 + eta^2)
+            do m = 1, n_near
+                grad_near(m) = dwdr_near(m) / r_near(m)
+                visc_near(m) = r_near(m) * dwdr_near(m) / (r2_near(m) + phys%eta2)
+            end do
+            do m = 1, n_near
+                j = near(m)
+                d = p%x(:, i) - p%x(:, j)
+                r2 = r2_near(m)
+                r = r_near(m)
+                if (repulsive_walls .and. p%kind(j) == KIND_WALL) then
                     if (r < phys%repulsive_r0) then
                         q = phys%repulsive_r0 / r
                         dv = dv + phys%repulsive_d * (q**phys%repulsive_n1 - q**phys%repulsive_n2) &
@@ -254,11 +285,10 @@ contains
                     end if
                     cycle
                 end if
-                dwdr = phys%kernel%dwdr(r)
-                grad = d * (dwdr / r)
+                grad = d * grad_near(m)
                 vij = p%v(:, i) - p%v(:, j)
                 drho = drho + p%m(j) * dot_product(vij, grad)
-                pterm = p_i + p%p(j) / p%rho(j)**2
+                pterm = p_i + p_rho2(j)
                 dv = dv - p%m(j) * pterm * grad
                 de = de + 0.5_wp * p%m(j) * pterm * dot_product(vij, grad)
                 s = force_slot(j)
@@ -267,13 +297,13 @@ contains
                 select case (phys%viscosity)
                 case (VISCOSITY_MORRIS)
                     vvisc = vij
-                    if (p%kind(j) == KIND_WALL .and. phys%walls == WALLS_MORRIS) then
+                    if (morris_walls .and. p%kind(j) == KIND_WALL) then
                         beta = wall_beta(phys, p, i, j, solids)
                         vvisc = beta * vij
                     end if
-                    ! (mu_i + mu_j) / (rho_i rho_j) with mu = rho nu
-                    coeff = p%m(j) * phys%nu * phys%viscous_scale * (rho_i + p%rho(j)) &
-                        / (rho_i * p%rho(j)) * r * dwdr / (r2 + phys%eta2)
+                    ! (mu_i + mu_j) / (rho_i rho_j) = nu (1/rho_i + 1/rho_j) with mu = rho nu
+                    coeff = p%m(j) * phys%nu * phys%viscous_scale * (inv_rho(i) + inv_rho(j)) &
+                        * visc_near(m)
                     dv = dv + coeff * vvisc
                     de = de - 0.5_wp * coeff * dot_product(vvisc, vvisc)
                     if (s > 0) wall_forces(:, 2, s) = wall_forces(:, 2, s) - p%m(i) * coeff * &
