@@ -5,8 +5,8 @@ the body force on the fluid, and its convergence with resolution.
     scripts/body_drag.py OUTPUT_DIR [OUTPUT_DIR ...] [--case cylinder] [--body cylinder]
                          [--max-imbalance 1.0]
 
-For each run: the force on the body along the body force (last row of
-<case>_forces.csv, averaged over the last `--average` rows to smooth the pressure noise), the
+For each run: the force on the body along the body force (rows of <case>_forces.csv,
+averaged over the last `--fraction` of the run's time to smooth the pressure noise), the
 body force on the fluid, rho0 F times the fluid area (volume in 3D) of the box without the
 body, and their ratio in percent. With several runs (coarse to fine) the changes of the drag
 between successive resolutions and their ratios. Exits 1 when an imbalance exceeds
@@ -71,17 +71,50 @@ def body_measure(text, name, dim, extent):
     raise SystemExit(f"body_drag: no &body named '{name}' in the stored input")
 
 
+def sangani_acrivos_speed(text, dim, lo, hi, drag_per_length, nu, rho0):
+    """Mean fluid velocity of Stokes flow through a square array of cylinders that carries
+    this drag: Sangani & Acrivos (1982, Int. J. Multiphase Flow 8:193), dilute expansion for
+    a square array, F / (mu U_D) = 4 pi / (-ln(c)/2 - 0.738 + c - 0.887 c^2 + 2.038 c^3),
+    c the solid fraction and U_D the superficial velocity (cell average, bodies included);
+    the mean over the fluid is U_D / (1 - c). None unless a circle in a square 2D cell."""
+    if dim != 2 or abs((hi[0] - lo[0]) - (hi[1] - lo[1])) > 1e-12 * (hi[0] - lo[0]):
+        return None
+    shapes = re.findall(r"shape\s*=\s*'(\w+)'", text)
+    if shapes != ['circle']:
+        return None
+    radius = numbers(values(text, 'radius'))[0]
+    c = math.pi * radius**2 / (hi[0] - lo[0])**2
+    k = 4.0 * math.pi / (-0.5 * math.log(c) - 0.738 + c - 0.887 * c**2 + 2.038 * c**3)
+    return drag_per_length / (k * nu * rho0) / (1.0 - c)
+
+
+def mean_speed(output_dir, case, t_from, axis):
+    """Mass-weighted mean fluid velocity along the body force, averaged over the snapshots
+    from t_from on (the superficial velocity of Darcy's law times the porosity)."""
+    speeds = []
+    for name in sorted(glob.glob(os.path.join(output_dir, f'{case}_[0-9]*.h5'))):
+        with h5py.File(name, 'r') as f:
+            if float(f.attrs['time']) < t_from or int(f.attrs.get('write_complete', 0)) != 1:
+                continue
+            g = f['particles']
+            fluid = g['kind'][...] == 0
+            m = g['mass'][...][fluid]
+            speeds.append(float(np.sum(m * g['velocity'][...][fluid, axis]) / np.sum(m)))
+    return float(np.mean(speeds)) if speeds else float('nan')
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('output_dirs', nargs='+')
     ap.add_argument('--case', default='cylinder')
     ap.add_argument('--body', default='cylinder')
-    ap.add_argument('--average', type=int, default=1, help='rows averaged at the end')
+    ap.add_argument('--fraction', type=float, default=0.5,
+                    help='average the rows of the last fraction of the run time')
     ap.add_argument('--max-imbalance', type=float, default=None, help='percent')
     ap.add_argument('--require-convergence', action='store_true')
     args = ap.parse_args()
 
-    drags, failed = [], False
+    drags, speeds, failed = [], [], False
     for out in args.output_dirs:
         text = input_text(out, args.case)
         dim = int(numbers(values(text, 'dimension'))[0])
@@ -99,26 +132,34 @@ def main():
                     rows.append(row)
         if not rows:
             raise SystemExit(f"body_drag: no rows for '{args.body}' in {out}")
-        last = rows[-args.average:]
+        t_end = float(rows[-1]['time'])
+        last = [r for r in rows if float(r['time']) >= (1.0 - args.fraction) * t_end]
         key = 'F' + 'xyz'[axis]
         drag = float(np.mean([float(r[key]) for r in last]))
         expected = rho0 * force[axis] * fluid
         imbalance = 100.0 * (drag - expected) / expected
         drags.append(drag)
-        print(f'{out}: dx = {dx:g} m (L/{(hi[0] - lo[0]) / dx:.0f}), t = '
-              f'{float(last[-1]["time"]):g} s, drag {drag:.6e}, rho0 F A_fluid '
-              f'{expected:.6e} ({"N/m" if dim == 2 else "N"}), imbalance {imbalance:+.3f} %')
+        speeds.append(mean_speed(out, args.case, (1.0 - args.fraction) * t_end, axis))
+        nu = numbers(values(text, 'nu'))[0]
+        reference = sangani_acrivos_speed(text, dim, lo, hi, expected, nu, rho0)
+        print(f'{out}: dx = {dx:g} m (L/{(hi[0] - lo[0]) / dx:.0f}), {len(last)} rows from t = '
+              f'{float(last[0]["time"]):g} to {t_end:g} s, drag {drag:.6e}, rho0 F A_fluid '
+              f'{expected:.6e} ({"N/m" if dim == 2 else "N"}), imbalance {imbalance:+.3f} %, '
+              f'mean fluid velocity {speeds[-1]:.6e} m/s' +
+              ('' if reference is None else f' (Sangani & Acrivos {reference:.6e}, '
+               f'{100 * (speeds[-1] - reference) / reference:+.2f} %)'))
         if args.max_imbalance is not None and abs(imbalance) > args.max_imbalance:
             failed = True
-    for k in range(1, len(drags)):
-        change = drags[k] - drags[k - 1]
-        line = f'change {k}: {change:+.4e} ({100 * change / drags[k]:+.3f} %)'
-        if k >= 2:
-            ratio = abs(change) / abs(drags[k - 1] - drags[k - 2])
-            line += f', ratio to the previous change {ratio:.3f}'
-            if args.require_convergence and ratio > 0.5:
-                failed = True
-        print(line)
+    for name, series in (('drag', drags), ('mean velocity', speeds)):
+        for k in range(1, len(series)):
+            change = series[k] - series[k - 1]
+            line = f'{name} change {k}: {change:+.4e} ({100 * change / series[k]:+.3f} %)'
+            if k >= 2:
+                ratio = abs(change) / abs(series[k - 1] - series[k - 2])
+                line += f', ratio to the previous change {ratio:.3f}'
+                if args.require_convergence and name == 'drag' and ratio > 0.5:
+                    failed = True
+            print(line)
     if failed:
         print('body_drag: a threshold was exceeded', file=sys.stderr)
         return 1

@@ -21,7 +21,7 @@ module sph_walls
     implicit none
     private
     public :: solids_from_config, wall_layers, wall_lattice_ranges, wall_site, build_mirrors
-    public :: body_surface_sites
+    public :: body_surface_sites, clear_of_solids
 
 contains
 
@@ -183,6 +183,24 @@ contains
             end if
         end do
     end subroutine wall_lattice_ranges
+
+    !> Is the lattice site x at least dx/2 from every solid, so that a fluid particle there
+    !> has room (its dx^d cell) clear of the walls? The sites of a lattice that a curved
+    !> surface cuts lie at any distance from it: measured on the L/25 cylinder lattice, with
+    !> fluid particles at 0.1 dx from the surface one was drawn into the body within 750 s;
+    !> without them the run reached its steady state (6000 s). Box faces keep their first row
+    !> at exactly dx/2.
+    pure logical function clear_of_solids(solids, x, dx) result(clear)
+        type(solids_t), intent(in) :: solids
+        real(wp), intent(in) :: x(3), dx
+        integer :: k
+        clear = .true.
+        if (.not. allocated(solids%list)) return
+        do k = 1, size(solids%list)
+            if (solid_distance(solids%list(k), x) < 0.5_wp * dx * (1.0_wp - 1.0e-6_wp)) &
+                clear = .false.
+        end do
+    end function clear_of_solids
 
     !> Is the point x (a lattice site) inside a solid, and if so which (the one it lies
     !> deepest inside; ties, as on a corner diagonal, go to the lower number), the normal into

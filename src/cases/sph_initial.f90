@@ -9,8 +9,9 @@ module sph_initial
     use sph_config, only: config_t
     use sph_particles, only: particles_t, particles_reserve, KIND_FLUID, KIND_WALL
     use sph_physics, only: physics_t, WALLS_MORRIS, WALLS_REPULSIVE, WALLS_REPULSIVE_MIRROR
-    use sph_walls, only: wall_layers, wall_lattice_ranges, wall_site, body_surface_sites
-    use sph_solids, only: solids_t, solid_velocity
+    use sph_walls, only: wall_layers, wall_lattice_ranges, wall_site, body_surface_sites, &
+        clear_of_solids
+    use sph_solids, only: solids_t, solid_velocity, solid_distance, SOLID_PLANE
     use sph_domain, only: domain_t, domain_owner
     use sph_eos, only: eos_pressure
     implicit none
@@ -27,7 +28,7 @@ contains
         type(particles_t), intent(inout) :: p
         integer :: n_inside(3), first(3), last(3), idx(3), i, j, k, solid, layers, axis
         integer(i8) :: n_fluid_total, n_ext(3), linear
-        real(wp) :: xi(3), normal(3), distance, mass
+        real(wp) :: xi(3), normal(3), distance, mass, fluid_mass
         logical :: site
 
         n_inside = 1
@@ -37,6 +38,9 @@ contains
         end do
         n_fluid_total = product(int(n_inside, i8))
         mass = cfg%fluid%rho0 * cfg%domain%dx**cfg%domain%dimension
+        fluid_mass = mass
+        if (has_bodies()) fluid_mass = cfg%fluid%rho0 * fluid_volume() / &
+            real(max(1_i8, count_fluid_sites()), wp)
         p%n_owned = 0
         ! fluid
         do k = 1, n_inside(3)
@@ -47,12 +51,12 @@ contains
                     if (domain_owner(domain, xi) /= domain%rank) cycle
                     ! the lattice minus the solids (bodies inside the box, their surfaces
                     ! included): the same rule that makes the wall sites
-                    call wall_site(solids, xi, cfg%domain%dx, site, solid, normal, distance)
-                    if (site) cycle
+                    if (.not. fluid_site(xi)) cycle
                     linear = 1 + (i - 1) + int(n_inside(1), i8) * ((j - 1) + int(n_inside(2), &
                         i8) * (k - 1))
                     call add_particle(xi, linear, KIND_FLUID, [0.0_wp, 0.0_wp, 0.0_wp], 0.0_wp, &
                         [0.0_wp, 0.0_wp, 0.0_wp], 0)
+                    p%m(p%n_owned) = fluid_mass
                 end do
             end do
         end do
@@ -86,6 +90,89 @@ contains
         p%n_ghost = 0
 
     contains
+
+        !> A site that gets a fluid particle: outside every solid, its surface included, and
+        !> at least dx/2 from it (clear_of_solids).
+        logical function fluid_site(x)
+            real(wp), intent(in) :: x(3)
+            logical :: inside
+            integer :: s_index
+            real(wp) :: s_normal(3), s_distance
+            call wall_site(solids, x, cfg%domain%dx, inside, s_index, s_normal, s_distance)
+            fluid_site = .not. inside .and. clear_of_solids(solids, x, cfg%domain%dx)
+        end function fluid_site
+
+        logical function has_bodies()
+            integer :: b
+            has_bodies = .false.
+            if (.not. allocated(solids%list)) return
+            do b = 1, size(solids%list)
+                if (solids%list(b)%shape /= SOLID_PLANE) has_bodies = .true.
+            end do
+        end function has_bodies
+
+        !> Fluid sites of the whole lattice (every rank counts all of them: no MPI here).
+        integer(i8) function count_fluid_sites() result(n)
+            integer :: a, b, c
+            n = 0
+            do c = 1, n_inside(3)
+                do b = 1, n_inside(2)
+                    do a = 1, n_inside(1)
+                        if (fluid_site(lattice_position([a, b, c]))) n = n + 1
+                    end do
+                end do
+            end do
+        end function count_fluid_sites
+
+        !> The volume (area in 2D) of the box outside the bodies: each lattice cell that a
+        !> body surface may cross is sampled at 8^d (2D) or 4^d (3D) points. With bodies,
+        !> the fluid particles share rho0 times this volume, so the fluid's mass (and the
+        !> body force on it, which the drag balances at steady state) is the geometry's,
+        !> not that of the lattice sites left after cutting the bodies out.
+        real(wp) function fluid_volume() result(volume)
+            integer :: a, b, c, sa, sb, sc, n_sub(3), inside_count
+            real(wp) :: x0(3), y(3), reach, d_min
+            n_sub = 1
+            n_sub(1:cfg%domain%dimension) = merge(8, 4, cfg%domain%dimension == 2)
+            reach = 0.5_wp * sqrt(real(cfg%domain%dimension, wp)) * cfg%domain%dx
+            volume = 0.0_wp
+            do c = 1, n_inside(3)
+                do b = 1, n_inside(2)
+                    do a = 1, n_inside(1)
+                        x0 = lattice_position([a, b, c])
+                        d_min = body_distance(x0)
+                        if (d_min >= reach) then
+                            volume = volume + 1.0_wp
+                            cycle
+                        end if
+                        if (d_min <= -reach) cycle
+                        inside_count = 0
+                        do sc = 1, n_sub(3)
+                            do sb = 1, n_sub(2)
+                                do sa = 1, n_sub(1)
+                                    y = x0 + cfg%domain%dx * ((real([sa, sb, sc], wp) - &
+                                        0.5_wp) / real(n_sub, wp) - 0.5_wp)
+                                    y(cfg%domain%dimension + 1:) = x0(cfg%domain%dimension + 1:)
+                                    if (body_distance(y) < 0.0_wp) inside_count = inside_count + 1
+                                end do
+                            end do
+                        end do
+                        volume = volume + 1.0_wp - real(inside_count, wp) / real(product(n_sub), wp)
+                    end do
+                end do
+            end do
+            volume = volume * cfg%domain%dx**cfg%domain%dimension
+        end function fluid_volume
+
+        !> Signed distance to the nearest body (not the box faces).
+        real(wp) function body_distance(x) result(d)
+            real(wp), intent(in) :: x(3)
+            integer :: k
+            d = huge(1.0_wp)
+            do k = 1, size(solids%list)
+                if (solids%list(k)%shape /= SOLID_PLANE) d = min(d, solid_distance(solids%list(k), x))
+            end do
+        end function body_distance
 
         function lattice_position(ix) result(x)
             integer, intent(in) :: ix(3)
