@@ -145,6 +145,11 @@ contains
             cfg%numerics, cfg%fluid)
         if (sum(grp%n_errors) == 0) call check_analytic_channel(grp(1), cfg%run%analytic, &
             cfg%domain, cfg%fluid%body_force)
+        ! the analytic references describe an empty channel
+        if (sum(grp%n_errors) == 0 .and. trim(cfg%run%analytic) /= 'none' .and. &
+            size(bodies) > 0) call grp(1)%error('analytic', "'" // trim(cfg%run%analytic) // &
+            "' describes an empty channel, but the input has &body groups; use " // &
+            "analytic = 'none'")
     end subroutine read_groups
 
     !> Every key the code declares (group, key, type, default, range, unit, meaning).
