@@ -634,6 +634,9 @@ contains
         real(wp), allocatable :: rbuf(:, :)
         integer(i8), allocatable :: ibuf(:, :)
 
+        ! positions wrapped into the box and owned where they lie (the Verlet list may have
+        ! been reused since the last rebuild): the remeshing works on the periodic box
+        call synchronise(sim, env)
         dx_old = sim%cfg%domain%dx
         dx_new = dx_old * remesh_spacing_factor(mode)
         periodic = .false.
