@@ -39,16 +39,134 @@ module sph_refine
     use sph_kinds, only: wp, i8
     use sph_cell_list, only: neighbour_list_t, build_neighbour_list
     use sph_remesh_images, only: with_periodic_images
+    use sph_solids, only: solids_t, solid_distance, solid_normal, solid_reflect
     implicit none
     private
-    public :: refine_positions, EDGE_FACTOR
+    public :: refine_positions, wall_map, EDGE_FACTOR, MIRROR_DEPTH, WALL_BAND
 
     real(wp), parameter :: EDGE_FACTOR = 1.2_wp
     integer, parameter :: max_partners = 64
+    !> wall rule (see the header): particles within MIRROR_DEPTH old spacings of a surface are
+    !> mirrored; new positions within WALL_BAND new spacings of it are moved
+    real(wp), parameter :: MIRROR_DEPTH = 2.0_wp
+    real(wp), parameter :: WALL_BAND = 8.0_wp
 
 contains
 
+    !> New positions at spacing dx/2 from the particles x(:, 1:n) of spacing dx (see the module
+    !> header). solids, origin: the walls and bodies (absolute coordinates = x + origin); with
+    !> them the fluid next to each surface is refined by the wall rule of the header.
     subroutine refine_positions(dim, n, x, ids, dx, n_new, x_new, key, stat, errmsg, box, &
+            n_irregular, solids, origin)
+        integer, intent(in) :: dim, n
+        real(wp), intent(in) :: x(:, :), dx
+        integer(i8), intent(in) :: ids(:)
+        integer, intent(out) :: n_new
+        real(wp), allocatable, intent(out) :: x_new(:, :)
+        integer(i8), allocatable, intent(out) :: key(:, :)
+        integer, intent(out), optional :: stat
+        character(len=*), intent(out), optional :: errmsg
+        real(wp), intent(in), optional :: box(3)
+        integer, intent(out), optional :: n_irregular
+        type(solids_t), intent(in), optional :: solids
+        real(wp), intent(in), optional :: origin(3)
+        real(wp), allocatable :: xa(:, :)
+        integer(i8), allocatable :: ida(:)
+        logical, allocatable :: keep(:)
+        real(wp) :: org(3), d, dmin, band, y(3)
+        integer(i8) :: span
+        integer :: na, a, s, k, nearest, ns, st
+
+        st = 0
+        ns = 0
+        if (present(solids)) then
+            if (allocated(solids%list)) ns = size(solids%list)
+        end if
+        org = 0.0_wp
+        if (present(origin)) org = origin
+        if (ns == 0) then
+            call construct_positions(dim, n, x, ids, dx, n_new, x_new, key, st, errmsg, box, &
+                n_irregular)
+        else
+            ! the set and its mirror images across every surface within MIRROR_DEPTH dx
+            span = 1_i8
+            if (n > 0) span = maxval(ids(1:n)) + 1_i8
+            if (span > 2_i8**61 / int(ns + 1, i8)) then
+                n_new = 0
+                allocate(x_new(3, 0), key(2, 0))
+                st = 1
+                if (present(errmsg)) errmsg = 'refine_positions: ids too large for mirrors'
+                if (present(stat)) then
+                    stat = st
+                    return
+                end if
+                error stop 'refine_positions: ids too large for mirrors'
+            end if
+            allocate(xa(3, n * (ns + 1)), ida(n * (ns + 1)))
+            xa(:, 1:n) = x(:, 1:n)
+            ida(1:n) = ids(1:n)
+            na = n
+            do s = 1, ns
+                do a = 1, n
+                    d = solid_distance(solids%list(s), x(:, a) + org)
+                    if (d < 0.0_wp .or. d >= MIRROR_DEPTH * dx) cycle
+                    na = na + 1
+                    xa(:, na) = solid_reflect(solids%list(s), x(:, a) + org) - org
+                    xa(dim + 1:, na) = 0.0_wp
+                    ida(na) = int(s, i8) * span + ids(a)
+                end do
+            end do
+            call construct_positions(dim, na, xa, ida, dx, n_new, x_new, key, st, errmsg, box, &
+                n_irregular)
+            if (st == 0) then
+                ! drop what lies inside a solid, move the rest of the wall band (header)
+                band = WALL_BAND * 0.5_wp * dx
+                allocate(keep(n_new))
+                do k = 1, n_new
+                    y = x_new(:, k) + org
+                    dmin = huge(1.0_wp)
+                    nearest = 0
+                    do s = 1, ns
+                        d = solid_distance(solids%list(s), y)
+                        if (d < dmin) then
+                            dmin = d
+                            nearest = s
+                        end if
+                    end do
+                    keep(k) = dmin > -0.25_wp * dx
+                    if (keep(k) .and. dmin < band) then
+                        x_new(:, k) = x_new(:, k) + (wall_map(max(dmin, 0.0_wp), dx, band) &
+                            - dmin) * solid_normal(solids%list(nearest), y)
+                        x_new(dim + 1:, k) = 0.0_wp
+                    end if
+                end do
+                n_new = count(keep)
+                x_new = x_new(:, pack([(k, k = 1, size(keep))], keep))
+                key = key(:, pack([(k, k = 1, size(keep))], keep))
+            end if
+        end if
+        if (present(stat)) stat = st
+        if (st /= 0) return
+        if (present(box)) then
+            do k = 1, n_new
+                x_new(1:dim, k) = x_new(1:dim, k) &
+                    - box(1:dim) * floor(x_new(1:dim, k) / box(1:dim))
+            end do
+        end if
+    end subroutine refine_positions
+
+    !> Wall distance after the wall rule: d in [0, band) -> dx/4 + d (band - dx/4) / band
+    !> (dx the OLD spacing: the first new layer at half a new spacing), identity beyond.
+    pure real(wp) function wall_map(d, dx, band) result(g)
+        real(wp), intent(in) :: d, dx, band
+        if (d >= band) then
+            g = d
+        else
+            g = 0.25_wp * dx + d * (band - 0.25_wp * dx) / band
+        end if
+    end function wall_map
+
+    subroutine construct_positions(dim, n, x, ids, dx, n_new, x_new, key, stat, errmsg, box, &
             n_irregular)
         integer, intent(in) :: dim, n
         real(wp), intent(in) :: x(:, :), dx
@@ -174,12 +292,6 @@ contains
                     if (min(ids(a), ids(g)) == minval(ids(corner))) &
                         call emit_centre(3, corner, a, g)
                 end do
-            end do
-        end if
-        if (periodic) then
-            do k = 1, n_new
-                x_new(1:dim, k) = x_new(1:dim, k) &
-                    - bx(1:dim) * floor(x_new(1:dim, k) / bx(1:dim))
             end do
         end if
         x_new = x_new(:, 1:n_new)
@@ -341,5 +453,5 @@ contains
             end if
             error stop 'refine_positions: invalid input'
         end subroutine fail
-    end subroutine refine_positions
+    end subroutine construct_positions
 end module sph_refine
