@@ -49,7 +49,7 @@ module sph_refine
     !> wall rule (see the header): particles within MIRROR_DEPTH old spacings of a surface are
     !> mirrored; new positions within WALL_BAND new spacings of it are moved
     real(wp), parameter :: MIRROR_DEPTH = 2.0_wp
-    real(wp), parameter :: WALL_BAND = 8.0_wp
+    real(wp), parameter :: WALL_BAND = 20.0_wp
 
 contains
 
@@ -75,7 +75,7 @@ contains
         logical, allocatable :: keep(:)
         real(wp) :: org(3), d, dmin, band, y(3)
         integer(i8) :: span
-        integer :: na, a, s, k, nearest, ns, st
+        integer :: na, a, s, k, ns, st
 
         st = 0
         ns = 0
@@ -125,20 +125,19 @@ contains
                 do k = 1, n_new
                     y = x_new(:, k) + org
                     dmin = huge(1.0_wp)
-                    nearest = 0
                     do s = 1, ns
-                        d = solid_distance(solids%list(s), y)
-                        if (d < dmin) then
-                            dmin = d
-                            nearest = s
-                        end if
+                        dmin = min(dmin, solid_distance(solids%list(s), y))
                     end do
                     keep(k) = dmin > -0.25_wp * dx
-                    if (keep(k) .and. dmin < band) then
-                        x_new(:, k) = x_new(:, k) + (wall_map(max(dmin, 0.0_wp), dx, band) &
-                            - dmin) * solid_normal(solids%list(nearest), y)
-                        x_new(dim + 1:, k) = 0.0_wp
-                    end if
+                    if (.not. keep(k)) cycle
+                    ! the shifts of every solid whose band holds the point, superposed
+                    do s = 1, ns
+                        d = solid_distance(solids%list(s), y)
+                        if (d >= band) cycle
+                        x_new(:, k) = x_new(:, k) + (wall_map(max(d, 0.0_wp), dx, band) - d) &
+                            * solid_normal(solids%list(s), y)
+                    end do
+                    x_new(dim + 1:, k) = 0.0_wp
                 end do
                 n_new = count(keep)
                 x_new = x_new(:, pack([(k, k = 1, size(keep))], keep))
