@@ -19,10 +19,20 @@ run 1 --remesh refine "$checkpoint" refined_1.h5 > remesh_1.log 2>&1 || \
     fail "--remesh refine on 1 rank failed:" remesh_1.log
 "$python" "$comparer" refined.h5 refined_1.h5 > compare.log 2>&1 || \
     fail "the refined checkpoint depends on the rank count:" compare.log
-# 10 x 20 fluid particles at L/20: 39 rows of 20 at L/40 (the rows next to the walls keep
-# their old distance, see the user guide)
-grep -q "remesh refine at t = .*: fluid particles 200 -> 780, dx  5.000E-05 ->  2.500E-05 m" \
+# 10 x 20 fluid particles at L/20: 41 rows of 20 at L/40 (the wall rule of sph_refine adds
+# a row at each wall, at half a new spacing from it, and compresses the bands next to walls)
+grep -q "remesh refine at t = .*: fluid particles 200 -> 820, dx  5.000E-05 ->  2.500E-05 m" \
     remesh.log || fail "unexpected counts in the remesh log:" remesh.log
+# the fluid next to each wall at half a new spacing (12.5 um), none closer, none inside
+"$python" - refined.h5 > rows.log 2>&1 <<'EOF_PY' || fail "wrong wall distances:" rows.log
+import sys, h5py, numpy as np
+with h5py.File(sys.argv[1], "r") as f:
+    y = f["particles/position"][:, 1][f["particles/solid"][:] == 0]
+d = np.minimum(y, 1.0e-3 - y)
+print("closest fluid to a wall:", d.min(), "farthest of the first row:", d[d < 2e-5].max())
+ok = abs(d.min() - 12.5e-6) < 0.1e-6 and (d < 2e-5).sum() == 40 and d[d < 2e-5].max() < 12.6e-6
+sys.exit(0 if ok else 1)
+EOF_PY
 for what in mass momentum; do
     change=$(grep "^  $what" remesh.log | sed 's/.*change[^0-9]*\([0-9.E+-]*\)).*/\1/')
     awk -v c="$change" 'BEGIN { exit !(c + 0 < 1e-12) }' || \
@@ -32,7 +42,7 @@ grep -q "^  time .* s (.* us per particle)" remesh.log || fail "no cost line:" r
 
 run "$np" "$fine" --restart refined.h5 > fine.log 2>&1 || \
     fail "the L/40 continuation failed:" fine.log
-grep -q "particles: .* real (fluid 780)" fine.log || fail "unexpected continuation:" fine.log
+grep -q "particles: .* real (fluid 820)" fine.log || fail "unexpected continuation:" fine.log
 # no density jump: the fluid density stays within 0.5 % of rho0 in every progress line
 awk '/\.\.[0-9]/ { split($5, r, "\\.\\."); if (r[1] < 995 || r[2] > 1005) bad = 1 }
      END { exit bad }' fine.log || fail "density left rho0 +- 0.5 %:" fine.log
