@@ -73,9 +73,9 @@ contains
         real(wp), allocatable :: xa(:, :)
         integer(i8), allocatable :: ida(:)
         logical, allocatable :: keep(:)
-        real(wp) :: org(3), d, dmin, band, y(3)
+        real(wp) :: org(3), d, d1, d2, b, band, y(3)
         integer(i8) :: span
-        integer :: na, a, s, k, ns, st
+        integer :: na, a, s, s1, k, ns, st
 
         st = 0
         ns = 0
@@ -124,20 +124,29 @@ contains
                 allocate(keep(n_new))
                 do k = 1, n_new
                     y = x_new(:, k) + org
-                    dmin = huge(1.0_wp)
-                    do s = 1, ns
-                        dmin = min(dmin, solid_distance(solids%list(s), y))
-                    end do
-                    keep(k) = dmin > -0.25_wp * dx
-                    if (.not. keep(k)) cycle
-                    ! the shifts of every solid whose band holds the point, superposed
+                    ! the nearest solid (d1, s1) and the distance to the next one (d2)
+                    d1 = huge(1.0_wp)
+                    d2 = huge(1.0_wp)
+                    s1 = 0
                     do s = 1, ns
                         d = solid_distance(solids%list(s), y)
-                        if (d >= band) cycle
-                        x_new(:, k) = x_new(:, k) + (wall_map(max(d, 0.0_wp), dx, band) - d) &
-                            * solid_normal(solids%list(s), y)
+                        if (d < d1) then
+                            d2 = d1
+                            d1 = d
+                            s1 = s
+                        else if (d < d2) then
+                            d2 = d
+                        end if
                     end do
-                    x_new(dim + 1:, k) = 0.0_wp
+                    keep(k) = d1 > -0.25_wp * dx
+                    if (.not. keep(k)) cycle
+                    ! band, up to half-way to the next solid (map continuous where they meet)
+                    b = min(band, 0.5_wp * (max(d1, 0.0_wp) + d2))
+                    if (d1 < b) then
+                        x_new(:, k) = x_new(:, k) + (wall_map(max(d1, 0.0_wp), dx, b) - d1) &
+                            * solid_normal(solids%list(s1), y)
+                        x_new(dim + 1:, k) = 0.0_wp
+                    end if
                 end do
                 n_new = count(keep)
                 x_new = x_new(:, pack([(k, k = 1, size(keep))], keep))
