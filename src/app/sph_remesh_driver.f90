@@ -35,6 +35,17 @@
 !> are kept; the images' masses are dropped. Momentum: the uniform correction is redone over
 !> the particles in the box with the old total momentum (global sums).
 !>
+!> Next to solids (optional argument solids): refine_positions applies its wall rule, and the
+!> transfer is handed, besides the periodic images, the mirror images (across each solid
+!> surface) of the old and new particles within MIRROR_REACH = 3 h of it, the old ones with
+!> their mass, velocity, density and energy. A new particle next to a wall then sees old
+!> particles on both sides, as in the interior, and takes a mass that matches its volume
+!> (without mirrors the first row got 20 % too little: only the old row behind it reaches
+!> it). Only the particles in the box are kept; as for a plane wall the exchange with the
+!> mirrors is symmetric only to round-off (and for a curved one to O(dx/R)), the new masses
+!> and densities are scaled alike by (old total mass) / (new total mass), and momentum gets
+!> the uniform correction below.
+!>
 !> Density: rho_new = m_new / (volume handed on), the volume m/rho of each old particle being
 !> handed on with the same weights as its mass (sph_remesh_interp): a uniform density stays
 !> exactly uniform, and the density is consistent with the new mass and spacing. Energy: the
@@ -113,9 +124,10 @@ contains
     !> periodic: the domain; h_new: smoothing length given to the new particles. On return
     !> every rank has its non-fluid owned particles unchanged (first, in their order) and
     !> rank 0 also holds all the new fluid particles after them; ghosts and mirrors are gone
-    !> (n_total = n_owned). solids: the walls and bodies, for sph_refine's wall rule (refine
-    !> and same level); without them refining ignores the walls. The caller migrates and rebuilds. stat /= 0 (the same on every
-    !> rank) when the algorithms refuse the set; p is then unchanged.
+    !> (n_total = n_owned). The caller migrates and rebuilds. stat /= 0 (the same on every
+    !> rank) when the algorithms refuse the set; p is then unchanged. solids: the walls and
+    !> bodies (absolute coordinates), for sph_refine's wall rule and the mirrored transfer
+    !> (module header); without them the walls are ignored.
     subroutine remesh_fluid(env, mode, dim, dx, box_lo, box_hi, periodic, h_new, p, report, &
             stat, errmsg, solids)
         type(mpi_env_t), intent(in) :: env
