@@ -23,14 +23,21 @@ run 1 --remesh refine "$checkpoint" refined_1.h5 > remesh_1.log 2>&1 || \
 # a row at each wall, at half a new spacing from it, and compresses the bands next to walls)
 grep -q "remesh refine at t = .*: fluid particles 200 -> 820, dx  5.000E-05 ->  2.500E-05 m" \
     remesh.log || fail "unexpected counts in the remesh log:" remesh.log
-# the fluid next to each wall at half a new spacing (12.5 um), none closer, none inside
-"$python" - refined.h5 > rows.log 2>&1 <<'EOF_PY' || fail "wrong wall distances:" rows.log
+# the fluid next to each wall at half a new spacing (12.5 um), none closer, none inside, with
+# masses that match their volume (the mirrored transfer): within 5 % of the median mass
+"$python" - refined.h5 > rows.log 2>&1 <<'EOF_PY' || fail "wrong first rows:" rows.log
 import sys, h5py, numpy as np
 with h5py.File(sys.argv[1], "r") as f:
-    y = f["particles/position"][:, 1][f["particles/solid"][:] == 0]
+    fluid = f["particles/solid"][:] == 0
+    y = f["particles/position"][:, 1][fluid]
+    m = f["particles/mass"][fluid]
 d = np.minimum(y, 1.0e-3 - y)
-print("closest fluid to a wall:", d.min(), "farthest of the first row:", d[d < 2e-5].max())
-ok = abs(d.min() - 12.5e-6) < 0.1e-6 and (d < 2e-5).sum() == 40 and d[d < 2e-5].max() < 12.6e-6
+first = d < 2e-5
+ratio = m[first] / np.median(m)
+print("closest fluid to a wall:", d.min(), "farthest of the first rows:", d[first].max(),
+      "their mass / median mass:", ratio.min(), "..", ratio.max())
+ok = abs(d.min() - 12.5e-6) < 0.1e-6 and first.sum() == 40 and d[first].max() < 12.6e-6
+ok = ok and abs(ratio - 1.0).max() < 0.05
 sys.exit(0 if ok else 1)
 EOF_PY
 for what in mass momentum; do
