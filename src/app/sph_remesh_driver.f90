@@ -58,7 +58,7 @@ module sph_remesh_driver
     use sph_mpi_env, only: mpi_env_t, mpi_wp, mpi_i8, global_sum, global_max, agreed_status
     use sph_particles, only: particles_t, particles_gather, particles_reserve, particles_clear, &
         KIND_FLUID
-    use sph_refine, only: refine_positions
+    use sph_refine, only: refine_positions, WALL_BAND
     use sph_solids, only: solids_t, solid_distance, solid_reflect
     use sph_coarsen, only: coarsen_select
     use sph_remesh_interp, only: remesh_transfer
@@ -231,7 +231,8 @@ contains
             case (REMESH_REFINE, REMESH_SAME)
                 deallocate(xn)
                 call refine_positions(dim, n, x, ids, dx, n_new, xn, keys, st, text, &
-                    algorithm_box(dx), irregular, solids, box_lo)
+                    algorithm_box(dx), irregular, solids, box_lo, &
+                    merge(0.0_wp, WALL_BAND, mode == REMESH_SAME))
                 report%n_irregular = irregular
                 ! the keys travel in idn's place until fresh_ids turns them into ids
                 deallocate(idn)

@@ -89,9 +89,11 @@ contains
 
     !> New positions at spacing dx/2 from the particles x(:, 1:n) of spacing dx (see the module
     !> header). solids, origin: the walls and bodies (absolute coordinates = x + origin); with
-    !> them the fluid next to each surface is refined by the wall rule of the header.
+    !> them the fluid next to each surface is refined by the wall rule of the header, with a
+    !> band of band_width new spacings (default WALL_BAND); band_width = 0 (same-level
+    !> remeshing) moves nothing and drops the new row on the surface instead (d < dx/4).
     subroutine refine_positions(dim, n, x, ids, dx, n_new, x_new, key, stat, errmsg, box, &
-            n_irregular, solids, origin)
+            n_irregular, solids, origin, band_width)
         integer, intent(in) :: dim, n
         real(wp), intent(in) :: x(:, :), dx
         integer(i8), intent(in) :: ids(:)
@@ -103,11 +105,11 @@ contains
         real(wp), intent(in), optional :: box(3)
         integer, intent(out), optional :: n_irregular
         type(solids_t), intent(in), optional :: solids
-        real(wp), intent(in), optional :: origin(3)
+        real(wp), intent(in), optional :: origin(3), band_width
         real(wp), allocatable :: xa(:, :)
         integer(i8), allocatable :: ida(:)
         logical, allocatable :: keep(:)
-        real(wp) :: org(3), d, d1, d2, b, band, y(3)
+        real(wp) :: org(3), d, d1, d2, b, band, wb, y(3)
         integer(i8) :: span
         integer :: na, a, s, s1, k, ns, st
 
@@ -118,6 +120,8 @@ contains
         end if
         org = 0.0_wp
         if (present(origin)) org = origin
+        wb = WALL_BAND
+        if (present(band_width)) wb = band_width
         if (ns == 0) then
             call construct_positions(dim, n, x, ids, dx, n_new, x_new, key, st, errmsg, box, &
                 n_irregular)
@@ -154,7 +158,7 @@ contains
                 n_irregular)
             if (st == 0) then
                 ! drop what lies inside a solid, move the rest of the wall band (header)
-                band = WALL_BAND * 0.5_wp * dx
+                band = wb * 0.5_wp * dx
                 allocate(keep(n_new))
                 do k = 1, n_new
                     y = x_new(:, k) + org
@@ -172,11 +176,16 @@ contains
                             d2 = d
                         end if
                     end do
-                    keep(k) = d1 > -0.25_wp * dx
+                    ! without a band (same-level remeshing) the row on the surface is dropped
+                    if (band > 0.25_wp * dx) then
+                        keep(k) = d1 > -0.25_wp * dx
+                    else
+                        keep(k) = d1 > 0.25_wp * dx
+                    end if
                     if (.not. keep(k)) cycle
                     ! band, up to half-way to the next solid (map continuous where they meet)
                     b = min(band, 0.5_wp * (max(d1, 0.0_wp) + d2))
-                    if (d1 < b) then
+                    if (d1 < b .and. b > 0.25_wp * dx) then
                         x_new(:, k) = x_new(:, k) + (wall_map(max(d1, 0.0_wp), dx, b) - d1) &
                             * solid_normal(solids%list(s1), y)
                         x_new(dim + 1:, k) = 0.0_wp
