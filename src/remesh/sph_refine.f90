@@ -84,6 +84,8 @@ module sph_refine
     !> mirrored; new positions within WALL_BAND new spacings of it are moved
     real(wp), parameter :: MIRROR_DEPTH = 2.0_wp
     real(wp), parameter :: WALL_BAND = 20.0_wp
+    !> smallest distance (in new spacings) a moved point keeps from the points before it
+    real(wp), parameter :: MIN_GAP = 0.5_wp
 
 contains
 
@@ -108,7 +110,7 @@ contains
         real(wp), intent(in), optional :: origin(3), band_width
         real(wp), allocatable :: xa(:, :)
         integer(i8), allocatable :: ida(:)
-        logical, allocatable :: keep(:)
+        logical, allocatable :: keep(:), moved(:)
         real(wp) :: org(3), d, d1, d2, b, band, wb, y(3)
         integer(i8) :: span
         integer :: na, a, s, s1, k, ns, st
@@ -159,7 +161,8 @@ contains
             if (st == 0) then
                 ! drop what lies inside a solid, move the rest of the wall band (header)
                 band = wb * 0.5_wp * dx
-                allocate(keep(n_new))
+                allocate(keep(n_new), moved(n_new))
+                moved = .false.
                 do k = 1, n_new
                     y = x_new(:, k) + org
                     ! the nearest solid (d1, s1) and the distance to the next one (d2)
@@ -189,9 +192,11 @@ contains
                         x_new(:, k) = x_new(:, k) + (wall_map(max(d1, 0.0_wp), dx, b) - d1) &
                             * solid_normal(solids%list(s1), y)
                         x_new(dim + 1:, k) = 0.0_wp
+                        moved(k) = .true.
                     end if
                 end do
                 n_new = count(keep)
+                moved = pack(moved, keep)
                 x_new = x_new(:, pack([(k, k = 1, size(keep))], keep))
                 key = key(:, pack([(k, k = 1, size(keep))], keep))
             end if
@@ -204,6 +209,51 @@ contains
                     - box(1:dim) * floor(x_new(1:dim, k) / box(1:dim))
             end do
         end if
+        if (ns > 0) call thin_band()
+
+    contains
+
+        !> Clumps next to curved or staircase surfaces (mirrors close to their originals): a
+        !> moved point is dropped when a point that precedes it lies within MIN_GAP dx/2
+        !> (unmoved points precede moved ones, moved ones follow their keys' order).
+        subroutine thin_band()
+            real(wp), allocatable :: xi(:, :)
+            integer, allocatable :: orig(:)
+            type(neighbour_list_t) :: nl
+            logical :: periodic
+            real(wp) :: bx(3), rmin
+            integer :: ntot, i, j, t
+            logical, allocatable :: drop(:)
+            if (.not. any(moved)) return
+            rmin = MIN_GAP * 0.5_wp * dx
+            periodic = present(box)
+            bx = 0.0_wp
+            if (periodic) bx = box
+            call with_periodic_images(dim, n_new, x_new, periodic, bx, rmin, xi, orig, ntot)
+            call build_neighbour_list(xi, ntot, n_new, dim, rmin, nl)
+            allocate(drop(n_new))
+            drop = .false.
+            do i = 1, n_new
+                if (.not. moved(i)) cycle
+                do t = nl%start(i), nl%start(i + 1) - 1
+                    j = orig(nl%index(t))
+                    if (j == i) cycle
+                    if (.not. moved(j) .or. key_before(key(:, j), key(:, i))) then
+                        drop(i) = .true.
+                        exit
+                    end if
+                end do
+            end do
+            if (.not. any(drop)) return
+            x_new = x_new(:, pack([(i, i = 1, n_new)], .not. drop))
+            key = key(:, pack([(i, i = 1, n_new)], .not. drop))
+            n_new = count(.not. drop)
+        end subroutine thin_band
+
+        pure logical function key_before(ka, kb)
+            integer(i8), intent(in) :: ka(2), kb(2)
+            key_before = ka(1) < kb(1) .or. (ka(1) == kb(1) .and. ka(2) < kb(2))
+        end function key_before
     end subroutine refine_positions
 
     !> Wall distance after the wall rule: d in [0, band) -> dx/4 + d (band - dx/4) / band
