@@ -52,6 +52,15 @@
 !>     is continuous and monotone across a channel. The map is smooth, so the disorder of the
 !>     old set (and of the midpoint construction inside) is kept; only distances along the
 !>     normal shrink slightly in the band.
+!>  3. Thinning. Next to a curved or staircase surface (Morris' lattice bodies leave particles
+!>     0.1 dx from it) a particle and its mirror are close, and their cells give clumps and,
+!>     where d < 0 collapses onto dx/4, duplicates. A moved point is dropped when a point
+!>     that precedes it lies within MIN_GAP = 0.5 new spacings (unmoved points precede moved
+!>     ones, moved ones follow the order of their keys: independent of storage order and
+!>     ranks). Nothing is dropped next to a plane wall (all pairs >= 0.97 dx_new there).
+!>     Morris' cylinder (L/50 at 50 s): 2184 -> 8684 (3.98 N), minimum pair 0.59 dx_new,
+!>     CoV of nearest distances 0.016; the particles left where clumps were thinned carry up
+!>     to twice the median mass (their neighbours' volume).
 !> Result: first row at dx/4 = dx_new/2 from each surface (exactly for a plane; for
 !> a curved surface the mirrored cells are centred on it to O(dx^2 / R)), no gap, nothing
 !> inside; the count is 2^dim N + about one new row per surface minus the half row the set
@@ -76,7 +85,7 @@ module sph_refine
     use sph_solids, only: solids_t, solid_distance, solid_normal, solid_reflect
     implicit none
     private
-    public :: refine_positions, wall_map, EDGE_FACTOR, MIRROR_DEPTH, WALL_BAND
+    public :: refine_positions, wall_map, EDGE_FACTOR, MIRROR_DEPTH, WALL_BAND, MIN_GAP
 
     real(wp), parameter :: EDGE_FACTOR = 1.2_wp
     integer, parameter :: max_partners = 64
