@@ -35,6 +35,17 @@
 !> are kept; the images' masses are dropped. Momentum: the uniform correction is redone over
 !> the particles in the box with the old total momentum (global sums).
 !>
+!> Next to solids (optional argument solids): refine_positions applies its wall rule, and the
+!> transfer is handed, besides the periodic images, the mirror images (across each solid
+!> surface) of the old and new particles within MIRROR_REACH = 3 h of it, the old ones with
+!> their mass, velocity, density and energy. A new particle next to a wall then sees old
+!> particles on both sides, as in the interior, and takes a mass that matches its volume
+!> (without mirrors the first row got 20 % too little: only the old row behind it reaches
+!> it). Only the particles in the box are kept; as for a plane wall the exchange with the
+!> mirrors is symmetric only to round-off (and for a curved one to O(dx/R)), the new masses
+!> and densities are scaled alike by (old total mass) / (new total mass), and momentum gets
+!> the uniform correction below.
+!>
 !> Density: rho_new = m_new / (volume handed on), the volume m/rho of each old particle being
 !> handed on with the same weights as its mass (sph_remesh_interp): a uniform density stays
 !> exactly uniform, and the density is consistent with the new mass and spacing. Energy: the
@@ -47,7 +58,8 @@ module sph_remesh_driver
     use sph_mpi_env, only: mpi_env_t, mpi_wp, mpi_i8, global_sum, global_max, agreed_status
     use sph_particles, only: particles_t, particles_gather, particles_reserve, particles_clear, &
         KIND_FLUID
-    use sph_refine, only: refine_positions
+    use sph_refine, only: refine_positions, WALL_BAND
+    use sph_solids, only: solids_t, solid_distance, solid_reflect
     use sph_coarsen, only: coarsen_select
     use sph_remesh_interp, only: remesh_transfer
     use sph_global_ids, only: assign_global_ids, global_max_id
@@ -63,6 +75,8 @@ module sph_remesh_driver
 
     !> image reach of the transfer, in units of the transfer spacing h (see the module header)
     real(wp), parameter :: REACH = 5.0_wp
+    !> mirror reach of the transfer next to solids, in units of h (see the module header)
+    real(wp), parameter :: MIRROR_REACH = 3.0_wp
 
     !> What a remesh did (global values, the same on every rank).
     type :: remesh_report_t
@@ -111,9 +125,11 @@ contains
     !> every rank has its non-fluid owned particles unchanged (first, in their order) and
     !> rank 0 also holds all the new fluid particles after them; ghosts and mirrors are gone
     !> (n_total = n_owned). The caller migrates and rebuilds. stat /= 0 (the same on every
-    !> rank) when the algorithms refuse the set; p is then unchanged.
+    !> rank) when the algorithms refuse the set; p is then unchanged. solids: the walls and
+    !> bodies (absolute coordinates), for sph_refine's wall rule and the mirrored transfer
+    !> (module header); without them the walls are ignored.
     subroutine remesh_fluid(env, mode, dim, dx, box_lo, box_hi, periodic, h_new, p, report, &
-            stat, errmsg)
+            stat, errmsg, solids)
         type(mpi_env_t), intent(in) :: env
         integer, intent(in) :: mode, dim
         real(wp), intent(in) :: dx, box_lo(3), box_hi(3), h_new
@@ -122,6 +138,7 @@ contains
         type(remesh_report_t), intent(out) :: report
         integer, intent(out) :: stat
         character(len=:), allocatable, intent(out) :: errmsg
+        type(solids_t), intent(in), optional :: solids
         real(wp), allocatable :: x(:, :), v(:, :), m(:), rho(:), e(:)
         real(wp), allocatable :: xn(:, :), vn(:, :), mn(:), rhon(:), en(:)
         integer(i8), allocatable :: ids(:), idn(:)
@@ -214,7 +231,8 @@ contains
             case (REMESH_REFINE, REMESH_SAME)
                 deallocate(xn)
                 call refine_positions(dim, n, x, ids, dx, n_new, xn, keys, st, text, &
-                    algorithm_box(dx), irregular)
+                    algorithm_box(dx), irregular, solids, box_lo, &
+                    merge(0.0_wp, WALL_BAND, mode == REMESH_SAME))
                 report%n_irregular = irregular
                 ! the keys travel in idn's place until fresh_ids turns them into ids
                 deallocate(idn)
@@ -278,7 +296,7 @@ contains
                 eo_a(:), m_a(:), v_a(:, :), r_a(:), e_a(:)
             integer, allocatable :: orig_o(:), orig_n(:)
             integer :: no_a, nn_a, nmf, nvf, i
-            real(wp) :: h, mom_old(3), mom_new(3), mass_new, dv(3)
+            real(wp) :: h, mom_old(3), mom_new(3), mass_new, dv(3), scale
             character(len=200) :: text
             text = ''
             h = max(dx, dx * remesh_spacing_factor(mode))
@@ -286,6 +304,10 @@ contains
                 no_a)
             call with_images(dim, box_lo, box_hi, periodic, n_new, xn, h * REACH, xn_a, &
                 orig_n, nn_a)
+            if (present(solids)) then
+                call with_mirrors(dim, solids, box_lo, h * MIRROR_REACH, xo_a, orig_o, no_a)
+                call with_mirrors(dim, solids, box_lo, h * MIRROR_REACH, xn_a, orig_n, nn_a)
+            end if
             mo_a = m(orig_o); rho_a = rho(orig_o); eo_a = e(orig_o); vo_a = v(:, orig_o)
             allocate(m_a(nn_a), v_a(3, nn_a), r_a(nn_a), e_a(nn_a))
             call remesh_transfer(dim, h, no_a, xo_a, mo_a, vo_a, rho_a, eo_a, nn_a, xn_a, &
@@ -298,6 +320,13 @@ contains
             report%n_velocity_fallback = nvf
             mn = m_a(1:n_new); rhon = r_a(1:n_new); en = e_a(1:n_new)
             vn = v_a(:, 1:n_new)
+            if (present(solids) .and. n_new > 0) then
+                ! the mirrors' exchange is symmetric only for plane walls: restore the total
+                ! mass exactly, scaling the densities alike (volumes unchanged)
+                scale = sum(m(1:n)) / sum(mn)
+                mn = mn * scale
+                rhon = rhon * scale
+            end if
             vn(dim + 1:, :) = 0.0_wp
             ! one uniform correction over the particles in the box: momentum as before
             mom_old = 0.0_wp; mom_new = 0.0_wp
@@ -431,6 +460,40 @@ contains
         call move_alloc(yt, y)
         call move_alloc(ot, orig)
     end subroutine with_images
+
+    !> Append to y(:, 1:ny) the mirror images, across every solid, of its points (relative to
+    !> box_lo) that lie in the fluid within `dist` of that solid's surface; orig follows.
+    subroutine with_mirrors(dim, solids, box_lo, dist, y, orig, ny)
+        integer, intent(in) :: dim
+        type(solids_t), intent(in) :: solids
+        real(wp), intent(in) :: box_lo(3), dist
+        real(wp), allocatable, intent(inout) :: y(:, :)
+        integer, allocatable, intent(inout) :: orig(:)
+        integer, intent(inout) :: ny
+        real(wp), allocatable :: yt(:, :)
+        integer, allocatable :: ot(:)
+        integer :: s, i, n0, ns
+        real(wp) :: d
+        if (.not. allocated(solids%list)) return
+        ns = size(solids%list)
+        if (ns == 0) return
+        n0 = ny
+        allocate(yt(3, n0 * (ns + 1)), ot(n0 * (ns + 1)))
+        yt(:, 1:n0) = y(:, 1:n0)
+        ot(1:n0) = orig(1:n0)
+        do s = 1, ns
+            do i = 1, n0
+                d = solid_distance(solids%list(s), y(:, i) + box_lo)
+                if (d < 0.0_wp .or. d >= dist) cycle
+                ny = ny + 1
+                yt(:, ny) = solid_reflect(solids%list(s), y(:, i) + box_lo) - box_lo
+                yt(dim + 1:, ny) = 0.0_wp
+                ot(ny) = orig(i)
+            end do
+        end do
+        y = yt(:, 1:ny)
+        orig = ot(1:ny)
+    end subroutine with_mirrors
 
     !> Local mass and momentum of the selected owned particles: (m, m vx, m vy, m vz).
     subroutine fluid_totals(p, sel, totals)

@@ -653,7 +653,7 @@ contains
         end if
         h_new = sim%phys%kernel%h
         call remesh_fluid(env, mode, sim%cfg%domain%dimension, dx_old, sim%cfg%domain%box_lo, &
-            sim%cfg%domain%box_hi, periodic, h_new, sim%p, report, stat, errmsg)
+            sim%cfg%domain%box_hi, periodic, h_new, sim%p, report, stat, errmsg, sim%solids)
         if (stat /= 0) call fatal_collective('remesh', errmsg)
         if (regenerate) then
             ! the fluid first (rank 0 holds it all), then the walls of the lattice at dx_new,
