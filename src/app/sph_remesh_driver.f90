@@ -164,23 +164,13 @@ contains
         n_new = 0
         allocate(xn(3, 0), vn(3, 0), mn(0), rhon(0), en(0), idn(0))
         if (env%rank == 0) call new_positions(my_stat, message)
-        stat = agreed_status(env, my_stat)
-        if (stat /= 0) then
-            errmsg = 'remesh: ' // message
-            if (env%rank /= 0) errmsg = 'remesh: refused on rank 0'
-            return
-        end if
+        if (refused()) return
         ! fresh ids for refined particles (collective; only rank 0 has keys)
         if (mode == REMESH_REFINE .or. mode == REMESH_SAME) call fresh_ids()
         if (env%rank == 0 .and. mode == REMESH_SAME) call coarsen_step(dx / 2.0_wp, my_stat, &
             message)
         if (env%rank == 0 .and. my_stat == 0) call transfer(my_stat, message)
-        stat = agreed_status(env, my_stat)
-        if (stat /= 0) then
-            errmsg = 'remesh: ' // message
-            if (env%rank /= 0) errmsg = 'remesh: refused on rank 0'
-            return
-        end if
+        if (refused()) return
 
         ! the non-fluid particles first, then (rank 0) the new fluid particles
         call particles_gather(p, pack([(k, k = 1, p%n_owned)], .not. fluid))
@@ -217,6 +207,15 @@ contains
         report%seconds = global_max(env, MPI_Wtime() - t0)
 
     contains
+
+        !> Whether rank 0's work failed (collective): then stat and errmsg say so on every rank.
+        logical function refused()
+            stat = agreed_status(env, my_stat)
+            refused = stat /= 0
+            if (.not. refused) return
+            errmsg = 'remesh: ' // message
+            if (env%rank /= 0) errmsg = 'remesh: refused on rank 0'
+        end function refused
 
         !> Rank 0: xn and (coarsening) idn of the new set, positions relative to box_lo.
         subroutine new_positions(st, msg)
