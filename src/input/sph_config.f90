@@ -18,18 +18,21 @@ module sph_config
     use sph_health_input, only: health_input_t, read_health_input
     use sph_remesh_input, only: remesh_input_t, read_remesh_input
     use sph_body_input, only: body_input_t, read_body_inputs, check_body_wall_model
+    use sph_refinement_input, only: refinement_input_t, region_input_t, &
+        read_refinement_input, read_region_inputs, check_refinement
     implicit none
     private
     public :: config_t, config_parse, config_to_text, config_read_file, config_keys
     public :: n_faces, face_names, known_groups, list_groups
 
     !> Groups given once (or left out), in the order they are read and written back.
-    character(len=8), parameter :: known_groups(9) = [character(len=8) :: &
+    character(len=10), parameter :: known_groups(10) = [character(len=10) :: &
         'run', 'output', 'domain', 'fluid', 'numerics', 'parallel', 'restart', 'health', &
-        'remesh']
+        'remesh', 'refinement']
     !> Groups that may be given several times (their owner reads a list), written back after
-    !> the others: &body, one per solid body inside the box.
-    character(len=8), parameter :: list_groups(1) = [character(len=8) :: 'body']
+    !> the others: &body, one per solid body inside the box; &region, one per refinement
+    !> region.
+    character(len=10), parameter :: list_groups(2) = [character(len=10) :: 'body', 'region']
 
     !> The resolved run configuration (defaults filled in, validated); set by config_parse
     !> only, so its resolved text always matches it.
@@ -44,6 +47,8 @@ module sph_config
         type(health_input_t) :: health
         type(remesh_input_t) :: remesh
         type(body_input_t), allocatable :: bodies(:)   !< &body groups, in file order
+        type(refinement_input_t) :: refinement
+        type(region_input_t), allocatable :: regions(:)   !< &region groups, in file order
         character(len=:), allocatable :: source_file
         character(len=:), allocatable :: resolved   !< namelist text of every key's value
     end type config_t
@@ -82,7 +87,7 @@ contains
         character(len=:), allocatable, intent(out) :: errmsg
         type(nml_file_t) :: file
         type(nml_group_t) :: grp(size(known_groups))
-        type(nml_group_t), allocatable :: bodies(:)
+        type(nml_group_t), allocatable :: bodies(:), regions(:)
         integer :: g
 
         cfg%source_file = source_name
@@ -100,7 +105,8 @@ contains
             grp(g) = file%take(trim(known_groups(g)))
         end do
         bodies = file%take_all('body')
-        call read_groups(grp, bodies, cfg)
+        regions = file%take_all('region')
+        call read_groups(grp, bodies, regions, cfg)
         cfg%resolved = ''
         do g = 1, size(known_groups)
             call grp(g)%finish()
@@ -114,6 +120,12 @@ contains
             errmsg = errmsg // bodies(g)%errors
             cfg%resolved = cfg%resolved // bodies(g)%to_text()
         end do
+        do g = 1, size(regions)
+            call regions(g)%finish()
+            stat = stat + regions(g)%n_errors
+            errmsg = errmsg // regions(g)%errors
+            cfg%resolved = cfg%resolved // regions(g)%to_text()
+        end do
         if (stat /= 0) errmsg = 'invalid input in ' // source_name // ':' // errmsg
     end subroutine config_parse
 
@@ -126,8 +138,8 @@ contains
     end function config_to_text
 
     !> Hand each group to its owner, then the checks that span groups.
-    subroutine read_groups(grp, bodies, cfg)
-        type(nml_group_t), intent(inout) :: grp(:), bodies(:)
+    subroutine read_groups(grp, bodies, regions, cfg)
+        type(nml_group_t), intent(inout) :: grp(:), bodies(:), regions(:)
         type(config_t), intent(inout) :: cfg
         call read_run_input(grp(1), cfg%run)
         call read_output_input(grp(2), cfg%run%t_end, cfg%output)
@@ -139,6 +151,8 @@ contains
         call read_health_input(grp(8), cfg%health)
         call read_remesh_input(grp(9), cfg%remesh)
         call read_body_inputs(bodies, cfg%domain, cfg%bodies)
+        call read_refinement_input(grp(10), cfg%refinement)
+        call read_region_inputs(regions, cfg%domain, cfg%bodies, cfg%regions)
         if (sum(grp%n_errors) == 0) call check_body_wall_model(bodies, cfg%bodies, &
             cfg%numerics%wall_model)
         if (sum(grp%n_errors) == 0) call check_moving_corners(grp(5), grp(4), cfg%domain, &
@@ -150,6 +164,9 @@ contains
             size(bodies) > 0) call grp(1)%error('analytic', "'" // trim(cfg%run%analytic) // &
             "' describes an empty channel, but the input has &body groups; use " // &
             "analytic = 'none'")
+        if (sum(grp%n_errors) == 0 .and. sum(bodies%n_errors) == 0 .and. &
+            sum(regions%n_errors) == 0) call check_refinement(grp(10), regions, grp(3), &
+            grp(5), grp(9), cfg%refinement, cfg%regions, cfg%domain, cfg%numerics, cfg%remesh)
     end subroutine read_groups
 
     !> Every key the code declares (group, key, type, default, range, unit, meaning).
@@ -168,7 +185,7 @@ contains
         do g = 1, size(list_groups)
             lists(g) = file%take(trim(list_groups(g)))
         end do
-        call read_groups(grp, lists, cfg)
+        call read_groups(grp, lists(1:1), lists(2:2), cfg)
         allocate(keys(0))
         do g = 1, size(known_groups)
             keys = [keys, grp(g)%keys]
