@@ -112,6 +112,8 @@ contains
             call grp(g)%finish()
             stat = stat + grp(g)%n_errors
             errmsg = errmsg // grp(g)%errors
+            ! &refinement means nothing without &region (and is refused alone): left out
+            if (trim(known_groups(g)) == 'refinement' .and. size(regions) == 0) cycle
             cfg%resolved = cfg%resolved // grp(g)%to_text()
         end do
         do g = 1, size(bodies)

@@ -139,8 +139,8 @@ contains
             above = dom%box_lo(ax) + (floor(k) + 1.0_wp) * dom%dx
             call grp%error(side // '(' // itoa(ax) // ')', real_text(v) // &
                 ' is not on the coarse lattice (box_lo + k dx, dx = ' // real_text(dom%dx) // &
-                '); the nearest allowed values are ' // real_text(below) // ' and ' // &
-                real_text(above) // ' m')
+                '); the nearest allowed values are ' // nice(below) // ' and ' // &
+                nice(above) // ' m')
         end subroutine check_face
 
         function body_list() result(text)
@@ -195,7 +195,7 @@ contains
         if (ref%transition_width > 0.0_wp .and. &
             ref%transition_width < minimum * (1.0_wp - lattice_tol)) call ref_grp%error( &
             'transition_width', real_text(ref%transition_width) // ' m is narrower than one ' // &
-            'kernel support of level 0: must be >= ' // real_text(minimum) // ' m (or 0 = ' // &
+            'kernel support of level 0: must be >= ' // nice(minimum) // ' m (or 0 = ' // &
             'automatic, that support)')
 
         if (size(regions) == 0) then
@@ -254,7 +254,7 @@ contains
             else
                 call region_grps(rr)%error('level', 'a level ' // itoa(level) // &
                     ' region must lie inside a level ' // itoa(level - 1) // ' region with ' // &
-                    'a margin of at least the transition width (' // real_text(ref%width) // &
+                    'a margin of at least the transition width (' // nice(ref%width) // &
                     ' m) wherever its boundary is inside the domain; no level ' // &
                     itoa(level - 1) // ' region holds it so')
             end if
@@ -297,6 +297,17 @@ contains
             inside = .true.
         end function box_in_box
     end subroutine check_refinement
+
+    !> x to 12 significant digits, shortest form: 0.15 for box_lo + 3 dx = 0.15000000000000002.
+    function nice(x) result(text)
+        real(wp), intent(in) :: x
+        character(len=:), allocatable :: text
+        character(len=32) :: buf
+        real(wp) :: rounded
+        write(buf, '(es32.11e3)') x
+        read(buf, *) rounded
+        text = real_text(rounded)
+    end function nice
 
     pure function itoa(i) result(text)
         integer, intent(in) :: i
