@@ -13,7 +13,8 @@
 module sph_walls
     use sph_kinds, only: wp
     use sph_config, only: config_t, n_faces, face_names
-    use sph_particles, only: particles_t, particles_reserve, KIND_FLUID, KIND_MIRROR
+    use sph_particles, only: particles_t, particles_reserve, KIND_FLUID, KIND_MIRROR, &
+        moves_with_flow
     use sph_physics, only: physics_t, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR
     use sph_solids, only: solids_t, solid_t, solids_add_plane, solid_distance, solid_normal, &
         solid_velocity, solid_reflect, deepest_solid, solids_add_body, SOLID_CIRCLE, &
@@ -251,7 +252,7 @@ contains
         reach = phys%kernel%support
         n_sources = p%n_total
         do k = 1, n_sources
-            if (p%kind(k) /= KIND_FLUID) cycle
+            if (.not. moves_with_flow(p%kind(k))) cycle
             n_near = 0
             do s = 1, size(solids%list)
                 if (n_near == max_near) exit

@@ -6,7 +6,7 @@
 !> continuity equation when it is integrated.
 module sph_integrator
     use sph_kinds, only: wp
-    use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL
+    use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL
     implicit none
     private
     public :: save_step_start, advance, max_step_displacement
@@ -31,7 +31,7 @@ contains
         integer :: i
         do i = 1, p%n_owned
             select case (p%kind(i))
-            case (KIND_FLUID)
+            case (KIND_FLUID, KIND_VIRTUAL)
                 p%x(:, i) = p%x_old(:, i) + dt_stage * p%v(:, i)
                 p%v(:, i) = p%v_old(:, i) + dt_stage * p%dvdt(:, i)
                 if (integrate_density) p%rho(i) = p%rho_old(i) + dt_stage * p%drhodt(i)

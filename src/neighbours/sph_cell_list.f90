@@ -25,7 +25,8 @@ module sph_cell_list
         integer :: n_pairs = 0
         integer, allocatable :: start(:)
         integer, allocatable :: index(:)
-        type(cell_grid_t) :: grid             !< binning scratch of the last build
+        !> binning scratch of the last build, one grid per resolution level (0:levels-1)
+        type(cell_grid_t), allocatable :: grids(:)
     end type neighbour_list_t
 
 contains
@@ -34,13 +35,21 @@ contains
     !> Each query scans its 3^dim cells row by row: the cells of a row are consecutive in the
     !> cell order, so a row is one run of `sorted`. Rows and cells are visited in the order
     !> (z, y, x) and particles within a cell by index, so the list order is reproducible.
-    subroutine build_neighbour_list(x, n_total, n_query, dim, radius, nl)
+    !> Resolution levels (multi-resolution runs): with level (of every particle) and
+    !> level_radius(0:), a particle's neighbours are the particles of its own level within
+    !> that level's radius; each level is binned in its own grid with its own cell size, so a
+    !> fine particle scans fine cells only.
+    subroutine build_neighbour_list(x, n_total, n_query, dim, radius, nl, level, level_radius)
         real(wp), intent(in) :: x(:, :)
         integer, intent(in) :: n_total, n_query, dim
         real(wp), intent(in) :: radius
         type(neighbour_list_t), intent(inout) :: nl
-        integer :: i, j, k, c(3), lo(3), hi(3), b, cz, row, first, last, pairs
-        real(wp) :: r2max, xi(3), d1, d2, d3
+        integer, intent(in), optional :: level(:)
+        real(wp), intent(in), optional :: level_radius(0:)
+        integer :: i, j, k, c(3), lo(3), hi(3), b, cz, row, first, last, pairs, lv, n_levels
+        real(wp) :: xi(3), d1, d2, d3
+        real(wp), allocatable :: r2max(:)
+        integer, allocatable :: members(:)
 
         nl%n_query = n_query
         if (allocated(nl%start)) then
@@ -49,12 +58,30 @@ contains
         if (.not. allocated(nl%start)) allocate(nl%start(max(n_query + 1, 1)))
         if (.not. allocated(nl%index)) allocate(nl%index(max(64, 40 * n_query)))
 
-        call bin_particles(x, n_total, dim, radius, nl%grid)
-        associate (grid => nl%grid)
-            r2max = radius * radius
-            pairs = 0
-            do i = 1, n_query
-                nl%start(i) = pairs + 1
+        n_levels = 1
+        if (present(level)) n_levels = size(level_radius)
+        if (allocated(nl%grids)) then
+            if (size(nl%grids) /= n_levels) deallocate(nl%grids)
+        end if
+        if (.not. allocated(nl%grids)) allocate(nl%grids(0:n_levels - 1))
+        allocate(r2max(0:n_levels - 1))
+        if (present(level)) then
+            do lv = 0, n_levels - 1
+                members = pack([(i, i = 1, n_total)], level(1:n_total) == lv)
+                call bin_particles(x, size(members), dim, level_radius(lv), nl%grids(lv), &
+                    members)
+                r2max(lv) = level_radius(lv)**2
+            end do
+        else
+            call bin_particles(x, n_total, dim, radius, nl%grids(0))
+            r2max(0) = radius * radius
+        end if
+        pairs = 0
+        lv = 0
+        do i = 1, n_query
+            nl%start(i) = pairs + 1
+            if (present(level)) lv = level(i)
+            associate (grid => nl%grids(lv))
                 xi = x(:, i)
                 c = cell_coords(grid, xi)
                 lo = 1; hi = 1
@@ -74,12 +101,12 @@ contains
                             d3 = xi(3) - x(3, j)
                             ! written unconditionally, kept by counting it (no branch)
                             nl%index(pairs + 1) = j
-                            if (d1**2 + d2**2 + d3**2 < r2max .and. j /= i) pairs = pairs + 1
+                            if (d1**2 + d2**2 + d3**2 < r2max(lv) .and. j /= i) pairs = pairs + 1
                         end do
                     end do
                 end do
-            end do
-        end associate
+            end associate
+        end do
         nl%start(n_query + 1) = pairs + 1
         nl%n_pairs = pairs
     end subroutine build_neighbour_list
@@ -102,21 +129,24 @@ contains
     end function projected_pairs
 
     !> Stable counting sort of particles into cells of at least `cell_size` covering their
-    !> bounding box. The grid's arrays are reused when they are large enough.
-    subroutine bin_particles(x, n, dim, cell_size, grid)
+    !> bounding box. The grid's arrays are reused when they are large enough. With members,
+    !> only the particles members(1:n) are binned (sorted holds their indices into x).
+    subroutine bin_particles(x, n, dim, cell_size, grid, members)
         real(wp), intent(in) :: x(:, :)
         integer, intent(in) :: n, dim
         real(wp), intent(in) :: cell_size
         type(cell_grid_t), intent(inout) :: grid
+        integer, intent(in), optional :: members(:)
         real(wp) :: lo(3), hi(3), size_used
-        integer :: i, ncells, cell
+        integer :: i, k, ncells, cell
         integer(8) :: estimate
 
         grid%dim = dim
         lo = 0.0_wp; hi = 0.0_wp
         if (n > 0) then
-            lo = x(:, 1); hi = x(:, 1)
-            do i = 2, n
+            lo = x(:, member(1)); hi = lo
+            do k = 2, n
+                i = member(k)
                 lo = min(lo, x(:, i))
                 hi = max(hi, x(:, i))
             end do
@@ -137,9 +167,9 @@ contains
         call reserve(grid%sorted, n)
         call reserve(grid%cell_of, n)
         grid%cell_start(1:ncells + 1) = 0
-        do i = 1, n
-            cell = linear_cell(grid, cell_coords(grid, x(:, i)))
-            grid%cell_of(i) = cell
+        do k = 1, n
+            cell = linear_cell(grid, cell_coords(grid, x(:, member(k))))
+            grid%cell_of(k) = cell
             grid%cell_start(cell + 1) = grid%cell_start(cell + 1) + 1
         end do
         ! cell_start(c) is the first slot of cell c; it serves as c's fill cursor, which
@@ -148,13 +178,19 @@ contains
         do cell = 1, ncells
             grid%cell_start(cell + 1) = grid%cell_start(cell + 1) + grid%cell_start(cell)
         end do
-        do i = 1, n
-            cell = grid%cell_of(i)
-            grid%sorted(grid%cell_start(cell)) = i
+        do k = 1, n
+            cell = grid%cell_of(k)
+            grid%sorted(grid%cell_start(cell)) = member(k)
             grid%cell_start(cell) = grid%cell_start(cell) + 1
         end do
         grid%cell_start(2:ncells + 1) = grid%cell_start(1:ncells)
         grid%cell_start(1) = 1
+    contains
+        pure integer function member(kk)
+            integer, intent(in) :: kk
+            member = kk
+            if (present(members)) member = members(kk)
+        end function member
     end subroutine bin_particles
 
     !> array holds at least n entries (contents not kept when it grows).

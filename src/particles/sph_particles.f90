@@ -20,7 +20,7 @@ module sph_particles
     public :: particles_add_field
     public :: particles_pack, particles_unpack, pack_widths, field_list
     public :: field_info_t, field_op_t
-    public :: KIND_FLUID, KIND_WALL, KIND_VIRTUAL, KIND_MIRROR
+    public :: KIND_FLUID, KIND_WALL, KIND_VIRTUAL, KIND_MIRROR, moves_with_flow
     public :: FIELD_REAL, FIELD_INT8, FIELD_INT
     public :: FIELD_SNAPSHOT, FIELD_CHECKPOINT, FIELD_SHIFTED, FIELD_OPTIONAL
     public :: HALO_GHOST, HALO_MOVE, HALO_DENSITY, HALO_STRAIN, ALL_FIELDS
@@ -185,6 +185,13 @@ module sph_particles
     end type list_op_t
 
 contains
+
+    !> Fluid particles, real or virtual (multi-resolution transition zones): they move with
+    !> the SPH equations and take part in every sum of their level.
+    pure elemental logical function moves_with_flow(kind)
+        integer, intent(in) :: kind
+        moves_with_flow = kind == KIND_FLUID .or. kind == KIND_VIRTUAL
+    end function moves_with_flow
 
     !> The field table: one line per field (component, file name, width, where it travels).
     subroutine particles_visit(p, op)

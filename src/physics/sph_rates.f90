@@ -12,13 +12,17 @@
 !> Loops run over the owned particles i with neighbours j among owned, ghost and mirror
 !> particles. Every pair term is antisymmetric in i and j, so momentum is conserved to
 !> round-off. No MPI here: the driver refreshes ghosts between the stages.
+!> Resolution levels: with `level` given, a routine updates the owned particles of that level
+!> only, with phys the physics of that level (its kernel); the neighbour list pairs particles
+!> of one level only, so each level is a complete SPH system of its own (real and virtual
+!> particles, walls of its spacing). Virtual particles (KIND_VIRTUAL) count as fluid.
 !> Morris walls need the distances of the fluid and the wall particle from the wall; with the
 !> solids given, a curved body's are measured as Morris et al. (1997, sec. 5) do: the fluid
 !> particle's is the body's signed distance at it, the wall particle's the distance behind the
 !> tangent plane at the surface point nearest the fluid particle.
 module sph_rates
     use sph_kinds, only: wp
-    use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL
+    use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL, moves_with_flow
     use sph_cell_list, only: neighbour_list_t
     use sph_physics, only: physics_t, VISCOSITY_MORRIS, VISCOSITY_STRAIN_RATE, WALLS_MORRIS, &
         WALLS_REPULSIVE, WALLS_REPULSIVE_MIRROR, WALL_PRESSURE_CONTINUITY
@@ -53,20 +57,22 @@ contains
     !> velocities meet, instead of carrying a density of its own that the fluid can squeeze
     !> into a corner. A wall particle without fluid in reach takes the rest density.
     !> The fluid pressures must be current (update_pressure) on entry.
-    subroutine extrapolate_wall_density(phys, p, nl)
+    subroutine extrapolate_wall_density(phys, p, nl, level)
         type(physics_t), intent(in) :: phys
         type(particles_t), intent(inout) :: p
         type(neighbour_list_t), intent(in) :: nl
+        integer, intent(in), optional :: level
         integer :: i, k, j
         real(wp) :: d(3), w, sum_w, sum_p, support2
         support2 = phys%kernel%support**2
         do i = 1, p%n_owned
             if (p%kind(i) /= KIND_WALL) cycle
+            if (other_level(p, i, level)) cycle
             sum_w = 0.0_wp
             sum_p = 0.0_wp
             do k = nl%start(i), nl%start(i + 1) - 1
                 j = nl%index(k)
-                if (p%kind(j) /= KIND_FLUID) cycle
+                if (.not. moves_with_flow(p%kind(j))) cycle
                 d = p%x(:, i) - p%x(:, j)
                 if (dot_product(d, d) >= support2) cycle
                 w = phys%kernel%w(norm2(d))
@@ -81,6 +87,15 @@ contains
             end if
         end do
     end subroutine extrapolate_wall_density
+
+    !> Particle i is not of `level` (when given): a per-level call leaves it alone.
+    pure logical function other_level(p, i, level)
+        type(particles_t), intent(in) :: p
+        integer, intent(in) :: i
+        integer, intent(in), optional :: level
+        other_level = .false.
+        if (present(level)) other_level = p%level(i) /= level
+    end function other_level
 
     !> Type-1 boundary particles only repel; they take no part in the SPH sums.
     pure logical function repulsive_only(phys, kind_j)
@@ -138,14 +153,16 @@ contains
     end function wall_beta
 
     !> rho_i = sum_j m_j W_ij (self included) for owned fluid particles; walls keep theirs.
-    subroutine compute_summation_density(phys, p, nl)
+    subroutine compute_summation_density(phys, p, nl, level)
         type(physics_t), intent(in) :: phys
         type(particles_t), intent(inout) :: p
         type(neighbour_list_t), intent(in) :: nl
+        integer, intent(in), optional :: level
         integer :: i, k, j
         real(wp) :: s, d(3)
         do i = 1, p%n_owned
-            if (p%kind(i) /= KIND_FLUID) cycle
+            if (.not. moves_with_flow(p%kind(i))) cycle
+            if (other_level(p, i, level)) cycle
             s = p%m(i) * phys%kernel%w(0.0_wp)
             do k = nl%start(i), nl%start(i + 1) - 1
                 j = nl%index(k)
@@ -161,14 +178,16 @@ contains
     !> eps^ab = sum_j m_j/rho_j (v_ji^b dW/dx^a + v_ji^a dW/dx^b)
     !>          - 2/3 delta^ab sum_j m_j/rho_j v_ji . grad W
     !> (the 2/3 of a three-dimensional fluid is kept in 2D: plane flow of a real fluid).
-    subroutine compute_strain_rate(phys, p, nl, solids)
+    subroutine compute_strain_rate(phys, p, nl, solids, level)
         type(physics_t), intent(in) :: phys
         type(particles_t), intent(inout) :: p
         type(neighbour_list_t), intent(in) :: nl
         type(solids_t), intent(in), optional :: solids   !< for Morris walls of curved bodies
+        integer, intent(in), optional :: level
         integer :: i, k, j, a, b
         real(wp) :: d(3), r, grad(3), vji(3), g(3, 3), div, beta
         do i = 1, p%n_owned
+            if (other_level(p, i, level)) cycle
             g = 0.0_wp
             do k = nl%start(i), nl%start(i + 1) - 1
                 j = nl%index(k)
@@ -178,7 +197,7 @@ contains
                 if (r <= 0.0_wp) cycle
                 grad = d / r * phys%kernel%dwdr(r)
                 vji = p%v(:, j) - p%v(:, i)
-                if (p%kind(j) == KIND_WALL .and. p%kind(i) == KIND_FLUID .and. &
+                if (p%kind(j) == KIND_WALL .and. moves_with_flow(p%kind(i)) .and. &
                     phys%walls == WALLS_MORRIS) then
                     beta = wall_beta(phys, p, i, j, solids)
                     vji = -beta * (p%v(:, i) - p%v(:, j))
@@ -203,12 +222,13 @@ contains
     !> added: (:, 1, s) pressure (and repulsion), (:, 2, s) viscous; it is minus the pair
     !> terms its wall (or mirror) particles give the owned fluid particles, so the fluid's
     !> total m dv/dt plus the forces on all solids equals the body force on the fluid.
-    subroutine compute_rates(phys, p, nl, solids, wall_forces)
+    subroutine compute_rates(phys, p, nl, solids, wall_forces, level)
         type(physics_t), intent(in) :: phys
         type(particles_t), intent(inout) :: p
         type(neighbour_list_t), intent(in) :: nl
         type(solids_t), intent(in), optional :: solids   !< for Morris walls of curved bodies
         real(wp), intent(inout), optional :: wall_forces(:, :, :)
+        integer, intent(in), optional :: level
         integer :: i, k, j, a, s, m, n_near
         real(wp) :: d(3), r2, r, grad(3), vij(3), vvisc(3), pterm, coeff, beta
         real(wp) :: drho, dv(3), de, rho_i, p_i, mu_i, q, sterm(3), eps_i(3, 3), eps_j(3, 3)
@@ -231,6 +251,7 @@ contains
         end do
 
         do i = 1, p%n_owned
+            if (other_level(p, i, level)) cycle
             p%drhodt(i) = 0.0_wp
             p%dvdt(:, i) = 0.0_wp
             p%dedt(i) = 0.0_wp
@@ -239,7 +260,7 @@ contains
                 if (phys%walls == WALLS_MORRIS .and. &
                     phys%wall_pressure == WALL_PRESSURE_CONTINUITY) call wall_density_rate(i)
                 cycle
-            case (KIND_FLUID)
+            case (KIND_FLUID, KIND_VIRTUAL)
             case default
                 cycle
             end select
@@ -371,13 +392,15 @@ contains
         end do
     end function tensor
 
-    !> Largest speed among owned fluid particles (for the CFL limit and the log).
+    !> Largest speed among owned fluid particles, real or virtual (for the CFL limit and the
+    !> log).
     pure real(wp) function local_max_speed(p)
         type(particles_t), intent(in) :: p
         integer :: i
         local_max_speed = 0.0_wp
         do i = 1, p%n_owned
-            if (p%kind(i) == KIND_FLUID) local_max_speed = max(local_max_speed, norm2(p%v(:, i)))
+            if (moves_with_flow(p%kind(i))) &
+                local_max_speed = max(local_max_speed, norm2(p%v(:, i)))
         end do
     end function local_max_speed
 
@@ -387,7 +410,7 @@ contains
         integer :: i
         local_max_acceleration = 0.0_wp
         do i = 1, p%n_owned
-            if (p%kind(i) == KIND_FLUID) &
+            if (moves_with_flow(p%kind(i))) &
                 local_max_acceleration = max(local_max_acceleration, norm2(p%dvdt(:, i)))
         end do
     end function local_max_acceleration

@@ -20,7 +20,7 @@
 !> and velocities must be current (the driver refreshes the halo before this stage). No MPI.
 module sph_shifting
     use sph_kinds, only: wp
-    use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL
+    use sph_particles, only: particles_t, KIND_WALL, moves_with_flow
     use sph_cell_list, only: neighbour_list_t
     use sph_physics, only: physics_t
     implicit none
@@ -38,18 +38,22 @@ contains
 
     !> dr_i = -D grad C_i for owned fluid particles (zero for the others), each capped at
     !> `limit` in length (direction kept).
-    subroutine shift_displacements(phys, p, nl, diffusion, limit, dr)
+    subroutine shift_displacements(phys, p, nl, diffusion, limit, dr, level)
         type(physics_t), intent(in) :: phys
         type(particles_t), intent(in) :: p
         type(neighbour_list_t), intent(in) :: nl
         real(wp), intent(in) :: diffusion, limit
         real(wp), intent(out) :: dr(:, :)   !< (3, n_owned)
+        integer, intent(in), optional :: level   !< only particles of this level (else dr = 0)
         integer :: i, k, j
         real(wp) :: d(3), r, grad_c(3), length, support
         support = phys%kernel%support
         do i = 1, p%n_owned
             dr(:, i) = 0.0_wp
-            if (p%kind(i) /= KIND_FLUID) cycle
+            if (.not. moves_with_flow(p%kind(i))) cycle
+            if (present(level)) then
+                if (p%level(i) /= level) cycle
+            end if
             grad_c = 0.0_wp
             do k = nl%start(i), nl%start(i + 1) - 1
                 j = nl%index(k)
@@ -81,7 +85,7 @@ contains
         dv = 0.0_wp
         if (correct_velocity) then
             do i = 1, p%n_owned
-                if (p%kind(i) /= KIND_FLUID) cycle
+                if (.not. moves_with_flow(p%kind(i))) cycle
                 if (all(dr(:, i) == 0.0_wp)) cycle
                 g = 0.0_wp      ! g(a, b) = d v^b / d x^a
                 do k = nl%start(i), nl%start(i + 1) - 1
@@ -101,7 +105,7 @@ contains
             end do
         end if
         do i = 1, p%n_owned
-            if (p%kind(i) /= KIND_FLUID) cycle
+            if (.not. moves_with_flow(p%kind(i))) cycle
             p%x(:, i) = p%x(:, i) + dr(:, i)
             p%v(:, i) = p%v(:, i) + dv(:, i)
         end do
@@ -109,16 +113,18 @@ contains
 
     !> One shifting pass with diffusion coefficient D, limit shifting_limit dx and the
     !> velocity correction; returns the largest shift of an owned particle.
-    subroutine shift_particles(phys, p, nl, diffusion, largest)
+    subroutine shift_particles(phys, p, nl, diffusion, largest, level)
         type(physics_t), intent(in) :: phys
         type(particles_t), intent(inout) :: p
         type(neighbour_list_t), intent(in) :: nl
         real(wp), intent(in) :: diffusion
         real(wp), intent(out), optional :: largest
+        integer, intent(in), optional :: level   !< shift only the particles of this level
         real(wp), allocatable :: dr(:, :)
         integer :: i
         allocate(dr(3, p%n_owned))
-        call shift_displacements(phys, p, nl, diffusion, phys%shifting_limit * phys%dx, dr)
+        call shift_displacements(phys, p, nl, diffusion, phys%shifting_limit * phys%dx, dr, &
+            level)
         call apply_shift(phys, p, nl, dr, .true.)
         if (present(largest)) then
             largest = 0.0_wp
@@ -132,6 +138,6 @@ contains
     !> shifting is accepted with Morris walls only).
     pure logical function in_concentration(kind_j)
         integer, intent(in) :: kind_j
-        in_concentration = kind_j == KIND_FLUID .or. kind_j == KIND_WALL
+        in_concentration = moves_with_flow(kind_j) .or. kind_j == KIND_WALL
     end function in_concentration
 end module sph_shifting
