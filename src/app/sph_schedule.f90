@@ -13,7 +13,7 @@ module sph_schedule
     use sph_reference, only: steady_after
     use sph_stepper, only: simulation_t, simulation_write_snapshot, &
         simulation_write_checkpoint, simulation_analytic_error, fluid_density_range, &
-        simulation_write_forces, simulation_log_forces
+        simulation_write_forces, simulation_log_forces, simulation_log_levels
     use sph_signals, only: signal_received
     implicit none
     private
@@ -182,8 +182,10 @@ contains
                 sched%wall_checkpoint = wall_now
             end if
         end if
-        if (mod(sim%step, sched%log_every) == 0 .or. sched%finished) &
+        if (mod(sim%step, sched%log_every) == 0 .or. sched%finished) then
             call log_progress(sched, sim, env)
+            call simulation_log_levels(sim, env)
+        end if
     end subroutine schedule_after_step
 
     !> A scheduler's SIGTERM or SIGUSR1 on any rank, or the wall-time limit on rank 0's clock:

@@ -10,6 +10,7 @@ module sph_stepper
     use sph_errors, only: fatal_collective
     use sph_logger, only: log_info
     use sph_particles, only: particles_t, particles_init, particles_gather, KIND_FLUID, &
+        KIND_VIRTUAL, &
         HALO_MOVE, HALO_DENSITY, HALO_STRAIN, pack_widths, ALL_FIELDS, particles_reserve, &
         particles_pack, particles_unpack
     use sph_physics, only: physics_t, physics_from_config, DENSITY_SUMMATION, &
@@ -47,6 +48,9 @@ module sph_stepper
     use sph_particles, only: particles_free
     use sph_remesh_driver, only: remesh_report_t, remesh_fluid, remesh_mode_code, &
         remesh_spacing_factor, REMESH_NONE, REMESH_SAME
+    use sph_zones, only: zones_t, zones_create
+    use sph_transition_driver, only: level_stats_t, create_level_particles, &
+        update_transition_zones_of => update_transition_zones, level_totals
     implicit none
     private
     public :: simulation_solid_forces, simulation_write_forces, simulation_log_forces
@@ -55,6 +59,7 @@ module sph_stepper
     public :: simulation_analytic_error, simulation_prepare_neighbours, simulation_free
     public :: simulation_restart, simulation_write_checkpoint, simulation_write_snapshot
     public :: fluid_density_range, simulation_remesh, simulation_remesh_file
+    public :: simulation_log_levels
 
     type :: simulation_t
         type(config_t) :: cfg
@@ -81,6 +86,14 @@ module sph_stepper
         character(len=:), allocatable :: snapshot_index   !< one line per snapshot, for XDMF
         character(len=512), allocatable :: checkpoints(:) !< written by this run, oldest first
         real(wp) :: next_remesh_time = huge(1.0_wp)  !< &remesh every_time: when the next is due
+        ! multi-resolution (&region): the levels' regions and transition zones, the physics of
+        ! each level (level_phys(0) is phys), the next unused global id base (the same on
+        ! every rank) and the transition updates' counters since the last log line
+        type(zones_t) :: zones
+        type(physics_t), allocatable :: level_phys(:)
+        integer(i8) :: next_id = 0
+        type(level_stats_t) :: level_stats
+        real(wp), allocatable :: first_level_mass(:)   !< real mass per level at the start
     end type simulation_t
 
 contains
@@ -110,6 +123,8 @@ contains
             end if
         end do
         sim%solids = solids_from_config(cfg)
+        sim%zones = zones_create(cfg, sim%solids)
+        call setup_level_physics(sim)
         allocate(sim%wall_forces(3, 2, size(sim%solids%list)))
         sim%wall_forces = 0.0_wp
         call reference_from_config(cfg, sim%ref, stat, errmsg)
@@ -131,6 +146,32 @@ contains
         if (cfg%remesh%every_time > 0.0_wp) sim%next_remesh_time = cfg%remesh%every_time
     end subroutine setup_common
 
+    !> The physics of every resolution level: the kernel (and what scales with it) at the
+    !> level's spacing dx / 2^level; one sound speed for all (the largest), so the equation of
+    !> state is the same on both sides of an interface.
+    subroutine setup_level_physics(sim)
+        type(simulation_t), intent(inout) :: sim
+        type(config_t) :: level_cfg
+        integer :: lv, stat
+        character(len=:), allocatable :: errmsg
+        allocate(sim%level_phys(0:sim%zones%n_levels - 1))
+        sim%level_phys(0) = sim%phys
+        do lv = 1, sim%zones%n_levels - 1
+            level_cfg = sim%cfg
+            level_cfg%domain%dx = sim%cfg%domain%dx / 2.0_wp**lv
+            call physics_from_config(level_cfg, sim%level_phys(lv), stat, errmsg)
+            if (stat /= 0) call fatal_collective('set-up', errmsg)
+        end do
+        sim%phys%c = maxval(sim%level_phys(:)%c)
+        sim%level_phys(:)%c = sim%phys%c
+    end subroutine setup_level_physics
+
+    !> More than one resolution level (&region groups).
+    pure logical function multires(sim)
+        type(simulation_t), intent(in) :: sim
+        multires = sim%zones%n_levels > 1
+    end function multires
+
     !> Build everything from a validated configuration (collective).
     subroutine simulation_setup(sim, env, cfg)
         type(simulation_t), intent(out) :: sim
@@ -146,6 +187,9 @@ contains
                 trim(cfg%domain%initial_particles), sim%p, stat, errmsg)
             if (stat /= 0) call fatal_collective('set-up', errmsg)
             call log_info('particles: read from ' // trim(cfg%domain%initial_particles))
+        else if (multires(sim)) then
+            call create_level_particles(env, cfg, sim%level_phys, sim%solids, sim%domain, &
+                sim%zones, sim%p)
         else
             call create_lattice_particles(cfg, sim%phys, sim%solids, sim%domain, sim%p)
         end if
@@ -159,8 +203,25 @@ contains
         call particles_gather(sim%p, order)
         call halo_setup(sim%halo, sim%domain, halo_reach(sim))
         call simulation_prepare_neighbours(sim, env)
+        call start_levels(sim, env)
         call log_setup(sim, env)
     end subroutine simulation_setup
+
+    !> Multi-resolution bookkeeping at the start of a run or restart: the next unused id and
+    !> each level's real mass, the reference of the mass drift in the log (collective).
+    subroutine start_levels(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        integer(i8), allocatable :: n_real(:), n_virtual(:)
+        real(wp), allocatable :: momentum(:, :)
+        if (.not. multires(sim)) return
+        sim%next_id = global_max_id(env, sim%p%id, sim%p%n_owned)
+        allocate(n_real(0:sim%zones%n_levels - 1), n_virtual(0:sim%zones%n_levels - 1))
+        allocate(sim%first_level_mass(0:sim%zones%n_levels - 1))
+        allocate(momentum(3, 0:sim%zones%n_levels - 1))
+        call level_totals(env, sim%p, sim%zones%n_levels, n_real, n_virtual, &
+            sim%first_level_mass, momentum)
+    end subroutine start_levels
 
     !> Continue from a checkpoint file, or from the newest complete one in a directory.
     !> On the rank count that wrote it the run continues bit for bit.
@@ -206,6 +267,7 @@ contains
         call halo_setup(sim%halo, sim%domain, halo_reach(sim))
         call simulation_prepare_neighbours(sim, env)
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+        call start_levels(sim, env)
         write(line, '(a,es12.5,a,i0,a)') 'continuing from ' // path // ' at t = ', sim%time, &
             ' s, step ', sim%step, merge(' (same decomposition)      ', &
                                          ' (decomposition rebuilt)   ', same_layout)
@@ -258,9 +320,14 @@ contains
     end subroutine simulation_write_checkpoint
 
     !> How far ghosts reach beyond a rank's region (see migrate_and_rebuild).
+    !> With several levels, ghosts must also cover what the transition zones' virtual particles
+    !> are made from: the interpolation reaches 2 sqrt(dim) coarse spacings.
     pure real(wp) function halo_reach(sim)
         type(simulation_t), intent(in) :: sim
         halo_reach = sim%phys%kernel%support + sim%skin + sim%list_skin
+        if (sim%zones%n_levels > 1) halo_reach = max(halo_reach, 2.0_wp * &
+            sqrt(real(sim%cfg%domain%dimension, wp)) * sim%cfg%domain%dx + sim%skin + &
+            sim%list_skin)
     end function halo_reach
 
     subroutine simulation_free(sim)
@@ -301,8 +368,15 @@ contains
     subroutine refresh_neighbours(sim)
         type(simulation_t), intent(inout) :: sim
         call build_mirrors(sim%phys, sim%solids, sim%p)
-        call build_neighbour_list(sim%p%x, sim%p%n_total, sim%p%n_owned, sim%p%dim, &
-            sim%phys%kernel%support + sim%list_skin, sim%nl)
+        if (multires(sim)) then
+            ! each level's particles pair with their own level only, within its support
+            call build_neighbour_list(sim%p%x, sim%p%n_total, sim%p%n_owned, sim%p%dim, &
+                sim%phys%kernel%support + sim%list_skin, sim%nl, sim%p%level, &
+                sim%level_phys(:)%kernel%support + sim%list_skin)
+        else
+            call build_neighbour_list(sim%p%x, sim%p%n_total, sim%p%n_owned, sim%p%dim, &
+                sim%phys%kernel%support + sim%list_skin, sim%nl)
+        end if
     end subroutine refresh_neighbours
 
     !> Rates at the current state. Ghost fields are current on entry; stages that produce a
@@ -310,6 +384,10 @@ contains
     subroutine evaluate_rates(sim, env)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
+        if (multires(sim)) then
+            call evaluate_level_rates(sim, env)
+            return
+        end if
         if (sim%phys%density_method == DENSITY_SUMMATION) then
             call compute_summation_density(sim%phys, sim%p, sim%nl)
             call halo_refresh(sim%halo, env, sim%p, HALO_DENSITY)
@@ -330,6 +408,39 @@ contains
         sim%wall_forces = 0.0_wp
         call compute_rates(sim%phys, sim%p, sim%nl, sim%solids, sim%wall_forces)
     end subroutine evaluate_rates
+
+    !> evaluate_rates for several levels: every stage level by level with the level's physics
+    !> (the neighbour list pairs particles of one level only), one halo refresh per stage.
+    subroutine evaluate_level_rates(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        integer :: lv
+        if (sim%phys%density_method == DENSITY_SUMMATION) then
+            do lv = 0, sim%zones%n_levels - 1
+                call compute_summation_density(sim%level_phys(lv), sim%p, sim%nl, lv)
+            end do
+            call halo_refresh(sim%halo, env, sim%p, HALO_DENSITY)
+        end if
+        call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+        if (sim%phys%walls == WALLS_MORRIS .and. &
+            sim%phys%wall_pressure == WALL_PRESSURE_EXTRAPOLATED) then
+            do lv = 0, sim%zones%n_levels - 1
+                call extrapolate_wall_density(sim%level_phys(lv), sim%p, sim%nl, lv)
+            end do
+            call halo_refresh(sim%halo, env, sim%p, HALO_DENSITY)
+            call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+        end if
+        if (sim%phys%viscosity == VISCOSITY_STRAIN_RATE) then
+            do lv = 0, sim%zones%n_levels - 1
+                call compute_strain_rate(sim%level_phys(lv), sim%p, sim%nl, sim%solids, lv)
+            end do
+            call halo_refresh(sim%halo, env, sim%p, HALO_STRAIN)
+        end if
+        sim%wall_forces = 0.0_wp
+        do lv = 0, sim%zones%n_levels - 1
+            call compute_rates(sim%level_phys(lv), sim%p, sim%nl, sim%solids, sim%wall_forces, lv)
+        end do
+    end subroutine evaluate_level_rates
 
     !> Force of the fluid on every solid (xyz, pressure|viscous, solid) from the rates of the
     !> step's second stage, the ones that advanced it (collective).
@@ -466,10 +577,13 @@ contains
         type(simulation_t), intent(in) :: sim
         type(mpi_env_t), intent(in) :: env
         type(timestep_limits_t) :: lim
-        real(wp) :: vmax, amax
+        real(wp) :: vmax, amax, h
         vmax = global_max(env, local_max_speed(sim%p))
         amax = global_max(env, local_max_acceleration(sim%p))
-        lim = timestep_limits(sim%phys%kernel%h, sim%phys%c, vmax, sim%phys%nu, amax, &
+        ! the finest level's smoothing length sets the step
+        h = sim%phys%kernel%h
+        if (multires(sim)) h = minval(sim%level_phys(:)%kernel%h)
+        lim = timestep_limits(h, sim%phys%c, vmax, sim%phys%nu, amax, &
             sim%cfg%numerics%cfl, sim%cfg%numerics%viscous_safety, sim%cfg%numerics%force_safety)
     end function stable_timestep
 
@@ -555,11 +669,20 @@ contains
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
         real(wp), intent(in) :: dt
+        integer :: lv
         if (sim%phys%shifting == SHIFTING_NONE) return
         call halo_refresh(sim%halo, env, sim%p, HALO_MOVE)
         call refresh_neighbours(sim)
-        call shift_particles(sim%phys, sim%p, sim%nl, &
-            shifting_diffusion(sim%phys, sim%last_limits%max_speed, dt))
+        if (multires(sim)) then
+            do lv = 0, sim%zones%n_levels - 1
+                call shift_particles(sim%level_phys(lv), sim%p, sim%nl, &
+                    shifting_diffusion(sim%level_phys(lv), sim%last_limits%max_speed, dt), &
+                    level=lv)
+            end do
+        else
+            call shift_particles(sim%phys, sim%p, sim%nl, &
+                shifting_diffusion(sim%phys, sim%last_limits%max_speed, dt))
+        end if
     end subroutine shift
 
     !> Verlet-list reuse: while no two particles can have closed in by more than half the
@@ -573,7 +696,8 @@ contains
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
         sim%drift = sim%drift + global_max(env, max_step_displacement(sim%p))
-        if (2.0_wp * sim%drift < 0.5_wp * sim%list_skin) then
+        ! with transition zones the particle set changes every step: rebuild every step
+        if (2.0_wp * sim%drift < 0.5_wp * sim%list_skin .and. .not. multires(sim)) then
             call halo_refresh(sim%halo, env, sim%p, HALO_MOVE)
             if (uses_mirrors(sim)) call refresh_neighbours(sim)
         else
@@ -647,6 +771,7 @@ contains
             sim%cfg%domain%dx = dx_new
             call physics_from_config(sim%cfg, sim%phys, stat, errmsg)
             if (stat /= 0) call fatal_collective('remesh', errmsg)
+            sim%level_phys(0) = sim%phys
             sim%solids = solids_from_config(sim%cfg)
             sim%skin = 2.0_wp * sim%cfg%numerics%cfl * sim%phys%kernel%h
             sim%list_skin = 0.1_wp * sim%phys%kernel%h
@@ -777,13 +902,55 @@ contains
             '--restart ' // out_path // ' and &domain dx = ' // trim(adjustl(number)))
     end subroutine simulation_remesh_file
 
-    !> Hook: move the transition zones between resolution levels with the flow (no-op today).
+    !> Multi-resolution: conversions and new virtual particles in the transition zones
+    !> (sph_transition_driver), then the halo and the neighbour list for the new set.
     subroutine update_transition_zones(sim, env)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
-        associate(unused_sim => sim, unused_env => env)
-        end associate
+        if (.not. multires(sim)) return
+        call update_transition_zones_of(env, sim%zones, sim%level_phys, sim%domain, &
+            sim%cfg%domain%box_lo, sim%cfg%domain%box_hi, sim%p, sim%next_id, sim%level_stats)
+        call simulation_prepare_neighbours(sim, env)
+        call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
     end subroutine update_transition_zones
+
+    !> Per level: real and virtual particles, conversions per step since the last call, real
+    !> mass and momentum, and the drift of the real mass from the start (collective; no
+    !> output with one level).
+    subroutine simulation_log_levels(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        integer(i8), allocatable :: n_real(:), n_virtual(:), became(:), left(:)
+        real(wp), allocatable :: mass(:), momentum(:, :), crossed(:)
+        real(wp) :: per_step
+        integer :: lv, n
+        character(len=320) :: line
+        if (.not. multires(sim)) return
+        n = sim%zones%n_levels
+        allocate(n_real(0:n - 1), n_virtual(0:n - 1), mass(0:n - 1), momentum(3, 0:n - 1))
+        call level_totals(env, sim%p, n, n_real, n_virtual, mass, momentum)
+        became = global_sum(env, sim%level_stats%became_real(0:n - 1))
+        left = global_sum(env, sim%level_stats%left(0:n - 1))
+        crossed = global_sum(env, [sim%level_stats%mass_in(0:n - 1), &
+            sim%level_stats%mass_out(0:n - 1)])
+        per_step = 1.0_wp / real(max(sim%level_stats%updates, 1_i8), wp)
+        do lv = 0, n - 1
+            write(line, '(a,i0,a,i0,a,i0,a,f8.3,a,f8.3,a,es16.9,a,es10.3,a,2es10.3,a,3es11.3)') &
+                '  level ', lv, ': ', n_real(lv), ' real, ', n_virtual(lv), &
+                ' virtual; per step ', real(became(lv + 1), wp) * per_step, ' became real, ', &
+                real(left(lv + 1), wp) * per_step, ' left; real mass ', mass(lv), &
+                ' kg (drift ', (mass(lv) - sim%first_level_mass(lv)) / &
+                sim%first_level_mass(lv), ', in/out since last line', crossed(lv + 1), &
+                crossed(n + lv + 1), '), momentum', momentum(:, lv)
+            call log_info(trim(line))
+        end do
+        write(line, '(a,es16.9,a,es10.3,a,i0,a,i0)') '  all levels: real mass ', sum(mass), &
+            ' kg (drift ', (sum(mass) - sum(sim%first_level_mass)) / sum(sim%first_level_mass), &
+            '); interpolation fallbacks ', global_sum(env, sim%level_stats%fallbacks), &
+            ', virtuals without sources ', global_sum(env, sim%level_stats%empty)
+        call log_info(trim(line))
+        sim%level_stats = level_stats_t()
+    end subroutine simulation_log_levels
 
     !> Stop collectively when the run has become unhealthy (sph_health): non-finite values, a
     !> fluid particle inside a solid, a density outside the band, a collapsed time step. The
@@ -880,9 +1047,10 @@ contains
         path = snapshot_filename(trim(sim%cfg%output%output_dir), trim(sim%cfg%run%case_name), &
             sim%step)
         call write_snapshot(env, sim%p, path, sim%time, sim%step, sim%cfg%domain%dimension, &
-            code_version, sim%input_text, stat, errmsg)
+            code_version, sim%input_text, stat, errmsg, with_virtual=writes_virtual(sim))
         if (stat /= 0) call fatal_collective('output', errmsg)
-        rows = global_sum(env, int(sim%p%n_owned, i8))
+        rows = global_sum(env, int(count(sim%p%kind(1:sim%p%n_owned) /= KIND_VIRTUAL .or. &
+            writes_virtual(sim)), i8))
         k = index(path, '/', back=.true.)
         sim%snapshot_index = sim%snapshot_index // xdmf_index_entry(sim%time, sim%step, rows, &
             path(k + 1:))
@@ -900,6 +1068,13 @@ contains
         end if
         call log_info(trim(line))
     end subroutine simulation_write_snapshot
+
+    !> Snapshots hold the virtual particles of transition zones only when asked
+    !> (&refinement write_virtual); checkpoints always do.
+    logical function writes_virtual(sim)
+        type(simulation_t), intent(in) :: sim
+        writes_virtual = sim%cfg%refinement%write_virtual
+    end function writes_virtual
 
     !> Smallest and largest fluid density over all ranks (collective).
     function fluid_density_range(sim, env) result(range)

@@ -74,7 +74,7 @@ contains
     !> Write one snapshot collectively (every rank, also one without particles). The text
     !> arguments must be the same on every rank (they become attributes).
     subroutine write_snapshot(env, p, path, time, step, dimension, code_version, input_text, &
-                              stat, errmsg)
+                              stat, errmsg, with_virtual)
         type(mpi_env_t), intent(in) :: env
         type(particles_t), intent(inout) :: p
         character(len=*), intent(in) :: path, code_version, input_text
@@ -83,11 +83,12 @@ contains
         integer, intent(in) :: dimension
         integer, intent(out), optional :: stat
         character(len=:), allocatable, intent(out), optional :: errmsg
+        logical, intent(in), optional :: with_virtual   !< rows for virtual particles (default)
         type(h5_file_t) :: file
         integer :: my_stat
         character(len=:), allocatable :: message
         call snapshot_begin(env, p, path, time, step, dimension, code_version, input_text, &
-            file, my_stat, message)
+            file, my_stat, message, with_virtual)
         if (my_stat == 0) call snapshot_end(env, path, file, my_stat, message)
         call finish(my_stat, message, 'write_snapshot', stat)
         if (present(errmsg)) errmsg = message
@@ -97,7 +98,7 @@ contains
     !> datasets; the caller may add more (checkpoints do) before snapshot_end. On failure
     !> (stat /= 0, the same on every rank) no file is left open.
     subroutine snapshot_begin(env, p, path, time, step, dimension, code_version, input_text, &
-                              file, stat, errmsg)
+                              file, stat, errmsg, with_virtual)
         type(mpi_env_t), intent(in) :: env
         type(particles_t), intent(inout) :: p
         character(len=*), intent(in) :: path, code_version, input_text
@@ -107,7 +108,9 @@ contains
         type(h5_file_t), intent(inout), target :: file
         integer, intent(out) :: stat
         character(len=:), allocatable, intent(out) :: errmsg
+        logical, intent(in), optional :: with_virtual
         integer :: n, i, dir_end, my_stat
+        logical :: virtual_rows
         integer(i8) :: offset, total
         integer, allocatable :: rows(:)
         integer(i4), allocatable :: ints(:)
@@ -133,12 +136,14 @@ contains
             return
         end if
 
-        ! the rows: owned real particles, in their storage order
+        ! the rows: owned particles in their storage order (virtual ones unless left out)
+        virtual_rows = .true.
+        if (present(with_virtual)) virtual_rows = with_virtual
         allocate(rows(p%n_owned))
         n = 0
         do i = 1, p%n_owned
             if (p%kind(i) == KIND_FLUID .or. p%kind(i) == KIND_WALL .or. &
-                p%kind(i) == KIND_VIRTUAL) then
+                (p%kind(i) == KIND_VIRTUAL .and. virtual_rows)) then
                 n = n + 1
                 rows(n) = i
             end if

@@ -1,0 +1,380 @@
+!> The parallel side of multi-resolution runs (thesis sec. 3.3, issue 11): the particles of
+!> every resolution level at set-up, and the transition zones' update after every step.
+!>
+!> Levels. Level L has spacing dx / 2^L (&domain dx is the coarsest) and its own kernel; its
+!> real fluid particles (kind 0) live where sph_zones' level_at is L, its virtual particles
+!> (kind 2) in its transition zone (in_transition), its wall particles wherever its fluid may
+!> reach a wall (within the zone width plus its kernel support of its region). The neighbour
+!> list pairs particles of one level only, so each level is a complete SPH system.
+!>
+!> Update after every step (the particles have been migrated and the halo built, so every
+!> rank sees its own particles and their neighbours), following the thesis' Figure 1-4:
+!>  1. conversions: a virtual particle that has moved into its level's region turns real (a
+!>     fresh global id, sph_global_ids, keyed by its virtual id and position); a real particle
+!>     that has moved out of it is deleted (its level no longer holds it: the other level's
+!>     virtual particles there have become real or are made anew);
+!>  2. for each interface (levels L-1 and L): fine virtuals from the coarse level's particles
+!>     (real and the previous step's virtuals, owned and ghosts, near the zone) and coarse
+!>     virtuals from the fine level's (sph_transition), each keeping the new positions in its
+!>     zone, inside the box and in this rank's subdomain, with fields interpolated from the
+!>     source level (M4'); masses are the sources' scaled by 2^-dim (fine) or 2^dim (coarse);
+!>  3. every old virtual particle and every departed real one is removed; the new virtuals
+!>     are appended as owned particles. The caller rebuilds the halo and the neighbour list.
+!> Mass. A level's real mass changes only by conversions: it gains the mass of the virtuals
+!> that turn real and loses the mass of the real particles that leave. Over both levels of
+!> an interface, flow across it moves mass from one level to the other; the driver counts
+!> both directions (level_stats_t) so the log shows the real mass of each level, of all
+!> levels together, and how much crossed.
+module sph_transition_driver
+    use sph_kinds, only: wp, i8
+    use sph_mpi_env, only: mpi_env_t, global_sum, global_max
+    use sph_errors, only: fatal_collective
+    use sph_config, only: config_t
+    use sph_particles, only: particles_t, particles_init, particles_free, particles_reserve, &
+        particles_gather, particles_clear, particles_pack, particles_unpack, pack_widths, &
+        ALL_FIELDS, KIND_FLUID, KIND_WALL, KIND_VIRTUAL, moves_with_flow
+    use sph_physics, only: physics_t
+    use sph_solids, only: solids_t
+    use sph_domain, only: domain_t, domain_owner
+    use sph_zones, only: zones_t, MAX_LEVEL
+    use sph_initial, only: create_lattice_particles
+    use sph_global_ids, only: global_max_id, assign_global_ids, id_order
+    use sph_transition, only: fine_virtual_positions, coarse_virtual_positions, &
+        interpolate_fields, virtual_id, image_source_id
+    implicit none
+    private
+    public :: level_stats_t, create_level_particles, update_transition_zones, level_totals
+
+    !> Source particles are taken within the zone width plus SOURCE_MARGIN source spacings:
+    !> enough for the refinement's cells (<= 1.8 dx), the coarsening's rows and tagging chains
+    !> (<= 4.3 fine spacings) and the interpolation's reach (2 sqrt(dim) h).
+    real(wp), parameter :: SOURCE_MARGIN = 4.0_wp
+
+    !> What the transition updates did since the counters were last reset (this rank).
+    type :: level_stats_t
+        integer(i8) :: became_real(0:MAX_LEVEL) = 0   !< virtual -> real
+        integer(i8) :: left(0:MAX_LEVEL) = 0          !< real particles that left their region
+        real(wp) :: mass_in(0:MAX_LEVEL) = 0.0_wp     !< mass of those that became real
+        real(wp) :: mass_out(0:MAX_LEVEL) = 0.0_wp    !< mass of those that left
+        integer(i8) :: updates = 0
+        integer(i8) :: fallbacks = 0                  !< interpolations below first order
+        integer(i8) :: empty = 0                      !< virtuals with no source in reach
+    end type level_stats_t
+
+    !> New virtual particles of one level, before they join the particle set.
+    type :: new_set_t
+        integer :: n = 0
+        integer :: level = 0
+        real(wp), allocatable :: x(:, :)
+        real(wp), allocatable :: f(:, :)   !< velocity (3), density, energy, mass
+        integer(i8), allocatable :: id(:)
+    end type new_set_t
+
+contains
+
+    !> Set-up of a multi-resolution run: for every level, the lattice of its spacing
+    !> (sph_initial) keeps its fluid sites in the level's region (real) and transition zone
+    !> (virtual), and its wall sites within reach of those. Real ids are unique over the
+    !> levels: each level's lattice ids are offset by the largest id of the levels before.
+    subroutine create_level_particles(env, cfg, level_phys, solids, domain, zones, p)
+        type(mpi_env_t), intent(in) :: env
+        type(config_t), intent(in) :: cfg
+        type(physics_t), intent(in) :: level_phys(0:)
+        type(solids_t), intent(in) :: solids
+        type(domain_t), intent(in) :: domain
+        type(zones_t), intent(in) :: zones
+        type(particles_t), intent(inout) :: p
+        type(config_t) :: level_cfg
+        type(particles_t) :: lattice
+        integer :: lv, k, n_real, n_int, c
+        integer(i8) :: offset, level_max
+        integer, allocatable :: keep(:)
+        logical, allocatable :: wanted(:)
+        real(wp), allocatable :: rbuf(:, :)
+        integer(i8), allocatable :: ibuf(:, :)
+        real(wp) :: reach
+
+        p%n_owned = 0
+        p%n_total = 0
+        offset = 0
+        do lv = 0, zones%n_levels - 1
+            level_cfg = cfg
+            level_cfg%domain%dx = cfg%domain%dx / 2.0_wp**lv
+            call particles_init(lattice, 1024, cfg%domain%dimension)
+            call create_lattice_particles(level_cfg, level_phys(lv), solids, domain, lattice)
+            level_max = global_max_id(env, lattice%id, lattice%n_owned)
+            reach = zones%width + level_phys(lv)%kernel%support
+            allocate(wanted(lattice%n_owned))
+            wanted = .false.
+            do k = 1, lattice%n_owned
+                lattice%level(k) = lv
+                lattice%id(k) = lattice%id(k) + offset
+                if (lattice%kind(k) == KIND_FLUID) then
+                    if (zones%level_at(lattice%x(:, k)) == lv) then
+                        wanted(k) = .true.
+                    else if (zones%in_transition(lattice%x(:, k), lv)) then
+                        lattice%kind(k) = KIND_VIRTUAL
+                        lattice%id(k) = virtual_id(lv, lattice%id(k), -1_i8)
+                        wanted(k) = .true.
+                    end if
+                else
+                    wanted(k) = zones%distance_to_level(lattice%x(:, k), lv) < reach
+                end if
+            end do
+            keep = pack([(k, k = 1, lattice%n_owned)], wanted)
+            deallocate(wanted)
+            offset = offset + level_max
+            c = p%n_owned
+            call particles_reserve(p, c + size(keep))
+            call pack_widths(lattice, ALL_FIELDS, n_real, n_int)
+            allocate(rbuf(n_real, max(size(keep), 1)), ibuf(n_int, max(size(keep), 1)))
+            call particles_pack(lattice, ALL_FIELDS, keep, size(keep), rbuf, ibuf)
+            call particles_unpack(p, ALL_FIELDS, c + 1, size(keep), rbuf, ibuf)
+            p%n_owned = c + size(keep)
+            p%n_total = p%n_owned
+            deallocate(keep, rbuf, ibuf)
+            call particles_free(lattice)
+        end do
+        p%n_ghost = 0
+    end subroutine create_level_particles
+
+    !> The transition zones after a step (see the module header; collective). On entry the
+    !> owned particles lie in this rank's subdomain and the ghosts are current; on exit the
+    !> owned set has changed and the ghosts are stale (the caller rebuilds them).
+    !> next_id: the next unused global id base, the same on every rank, advanced here.
+    subroutine update_transition_zones(env, zones, level_phys, domain, box_lo, box_hi, p, &
+            next_id, stats)
+        type(mpi_env_t), intent(in) :: env
+        type(zones_t), intent(in) :: zones
+        type(physics_t), intent(in) :: level_phys(0:)
+        type(domain_t), intent(in) :: domain
+        real(wp), intent(in) :: box_lo(3), box_hi(3)
+        type(particles_t), intent(inout) :: p
+        integer(i8), intent(inout) :: next_id
+        type(level_stats_t), intent(inout) :: stats
+        integer :: dim, i, lv, n_conv, k, stat
+        logical, allocatable :: drop(:)
+        integer, allocatable :: converted(:), keep(:)
+        integer(i8), allocatable :: keys(:, :), new_ids(:)
+        type(new_set_t), allocatable :: sets(:)
+        character(len=256) :: errmsg
+
+        dim = p%dim
+        allocate(drop(p%n_owned), converted(p%n_owned))
+        drop = .false.
+        n_conv = 0
+        ! 1. conversions (owned particles; old virtuals are dropped after serving as sources)
+        do i = 1, p%n_owned
+            select case (p%kind(i))
+            case (KIND_FLUID)
+                if (zones%level_at(p%x(:, i)) /= p%level(i)) then
+                    drop(i) = .true.
+                    stats%left(p%level(i)) = stats%left(p%level(i)) + 1
+                    stats%mass_out(p%level(i)) = stats%mass_out(p%level(i)) + p%m(i)
+                end if
+            case (KIND_VIRTUAL)
+                if (zones%level_at(p%x(:, i)) == p%level(i)) then
+                    n_conv = n_conv + 1
+                    converted(n_conv) = i
+                    stats%became_real(p%level(i)) = stats%became_real(p%level(i)) + 1
+                    stats%mass_in(p%level(i)) = stats%mass_in(p%level(i)) + p%m(i)
+                else
+                    drop(i) = .true.
+                end if
+            end select
+        end do
+        ! 2. the new virtual particles of every zone, from the particles as they are now
+        allocate(sets(2 * (zones%n_levels - 1)))
+        stat = 0
+        errmsg = ''
+        do lv = 1, zones%n_levels - 1
+            call make_virtuals(lv, lv - 1, sets(2 * lv - 1))   ! fine, from the coarse level
+            call make_virtuals(lv - 1, lv, sets(2 * lv))       ! coarse, from the fine level
+        end do
+        if (global_max(env, int(stat, i8)) /= 0) call fatal_collective('transition zones', &
+            'making virtual particles failed: ' // trim(errmsg))
+        ! 3. fresh ids for the virtuals that became real (rank-count independent keys)
+        allocate(keys(2, max(n_conv, 1)), new_ids(max(n_conv, 1)))
+        do k = 1, n_conv
+            keys(1, k) = p%id(converted(k))
+            keys(2, k) = transfer(p%x(1, converted(k)), 1_i8)
+        end do
+        call assign_global_ids(env, keys, n_conv, next_id, new_ids, next_id)
+        do k = 1, n_conv
+            p%kind(converted(k)) = KIND_FLUID
+            p%id(converted(k)) = new_ids(k)
+        end do
+        ! 4. drop the old virtuals and the departed, append the new virtuals
+        keep = pack([(i, i = 1, p%n_owned)], .not. drop)
+        call particles_gather(p, keep)
+        p%n_owned = size(keep)
+        p%n_ghost = 0
+        p%n_total = p%n_owned
+        do k = 1, size(sets)
+            call append_set(sets(k))
+        end do
+        stats%updates = stats%updates + 1
+
+    contains
+
+        !> Virtual particles of level `target` made from the particles of level `source` (an
+        !> adjacent level), kept where target's zone is and this rank owns the position.
+        subroutine make_virtuals(target, source, set)
+            integer, intent(in) :: target, source
+            type(new_set_t), intent(out) :: set
+            integer :: j, n_src, n_new, n_fb, n_empty, a, st
+            integer, allocatable :: src(:), keep_new(:), order(:)
+            logical, allocatable :: take(:)
+            real(wp), allocatable :: xs(:, :), xn(:, :), fs(:, :)
+            integer(i8), allocatable :: ids(:), vid(:)
+            real(wp) :: reach, dx_source, y(3), factor
+            character(len=256) :: msg
+            dx_source = level_phys(source)%dx
+            reach = zones%width + SOURCE_MARGIN * dx_source
+            allocate(take(p%n_owned + p%n_ghost))
+            do j = 1, p%n_owned + p%n_ghost
+                take(j) = p%level(j) == source .and. moves_with_flow(p%kind(j))
+                if (take(j)) take(j) = zones%distance_to_level(p%x(:, j), target) < reach
+            end do
+            src = pack([(j, j = 1, p%n_owned + p%n_ghost)], take)
+            n_src = size(src)
+            allocate(ids(max(n_src, 1)))
+            do j = 1, n_src
+                ids(j) = image_source_id(p%id(src(j)), p%x(:, src(j)), box_lo, box_hi, dim)
+            end do
+            ! a repeated id (two virtuals whose hashes agree modulo 2^55): keep the first in
+            ! id order, which does not depend on storage order
+            allocate(order(max(n_src, 1)))
+            call id_order(ids, n_src, order)
+            deallocate(take)
+            allocate(take(n_src))
+            take = .true.
+            do j = 2, n_src
+                if (ids(order(j)) == ids(order(j - 1))) take(order(j)) = .false.
+            end do
+            src = pack(src, take)
+            ids = pack(ids(1:n_src), take)
+            n_src = size(src)
+            allocate(xs(3, max(n_src, 1)))
+            do j = 1, n_src
+                xs(:, j) = p%x(:, src(j))
+            end do
+            st = 0
+            msg = ''
+            if (target > source) then
+                call fine_virtual_positions(dim, target, n_src, xs, ids, dx_source, n_new, xn, &
+                    vid, st, msg)
+            else
+                call coarse_virtual_positions(dim, target, n_src, xs, ids, dx_source, box_lo, &
+                    n_new, xn, vid, st, msg)
+            end if
+            if (st /= 0) then
+                stat = st
+                errmsg = msg
+                n_new = 0
+            end if
+            deallocate(take)
+            allocate(take(max(n_new, 0)))
+            do j = 1, n_new
+                y = xn(:, j)
+                take(j) = .not. any(y(1:dim) < box_lo(1:dim) .or. y(1:dim) >= box_hi(1:dim))
+                if (take(j)) take(j) = zones%level_at(y) == source
+                if (take(j)) take(j) = zones%in_transition(y, target)
+                if (take(j)) take(j) = domain_owner(domain, y) == domain%rank
+            end do
+            keep_new = pack([(j, j = 1, n_new)], take)
+            set%n = size(keep_new)
+            set%level = target
+            allocate(set%x(3, max(set%n, 1)), set%id(max(set%n, 1)), set%f(6, max(set%n, 1)))
+            set%x(:, 1:set%n) = xn(:, keep_new)
+            set%id(1:set%n) = vid(keep_new)
+            ! fields from the source level: velocity, density, energy, mass
+            allocate(fs(6, max(n_src, 1)))
+            do j = 1, n_src
+                fs(1:3, j) = p%v(:, src(j))
+                fs(4, j) = p%rho(src(j))
+                fs(5, j) = p%e(src(j))
+                fs(6, j) = p%m(src(j))
+            end do
+            call interpolate_fields(dim, dx_source, n_src, xs, fs, set%n, set%x, set%f, n_fb, &
+                n_empty)
+            factor = 2.0_wp**(dim * (source - target))
+            set%f(6, 1:set%n) = set%f(6, 1:set%n) * factor
+            stats%fallbacks = stats%fallbacks + n_fb
+            stats%empty = stats%empty + n_empty
+            if (n_empty > 0) then
+                ! no source in reach: a hole in the source level (cannot happen while the zone
+                ! is as wide as the support); keep the particle out rather than give it no mass
+                a = 0
+                do j = 1, set%n
+                    if (set%f(6, j) > 0.0_wp) then
+                        a = a + 1
+                        set%x(:, a) = set%x(:, j)
+                        set%id(a) = set%id(j)
+                        set%f(:, a) = set%f(:, j)
+                    end if
+                end do
+                set%n = a
+            end if
+        end subroutine make_virtuals
+
+        subroutine append_set(set)
+            type(new_set_t), intent(in) :: set
+            integer :: first, j, n
+            if (set%n == 0) return
+            first = p%n_owned + 1
+            call particles_reserve(p, p%n_owned + set%n)
+            call particles_clear(p, first, p%n_owned + set%n)
+            do j = 1, set%n
+                n = first + j - 1
+                p%x(:, n) = set%x(:, j)
+                p%v(:, n) = set%f(1:3, j)
+                p%rho(n) = set%f(4, j)
+                p%e(n) = set%f(5, j)
+                p%m(n) = set%f(6, j)
+                p%h(n) = level_phys(set%level)%kernel%h
+                p%x_old(:, n) = p%x(:, n)
+                p%v_old(:, n) = p%v(:, n)
+                p%rho_old(n) = p%rho(n)
+                p%e_old(n) = p%e(n)
+                p%id(n) = set%id(j)
+                p%kind(n) = KIND_VIRTUAL
+                p%level(n) = set%level
+            end do
+            p%n_owned = p%n_owned + set%n
+            p%n_total = p%n_owned
+        end subroutine append_set
+    end subroutine update_transition_zones
+
+    !> Per level (0:n_levels-1): real and virtual counts, real mass and momentum (collective).
+    subroutine level_totals(env, p, n_levels, n_real, n_virtual, mass, momentum)
+        type(mpi_env_t), intent(in) :: env
+        type(particles_t), intent(in) :: p
+        integer, intent(in) :: n_levels
+        integer(i8), intent(out) :: n_real(0:), n_virtual(0:)
+        real(wp), intent(out) :: mass(0:), momentum(:, 0:)
+        integer :: i, lv
+        real(wp) :: local(4 * n_levels)
+        integer(i8) :: counts(2 * n_levels)
+        local = 0.0_wp
+        counts = 0
+        do i = 1, p%n_owned
+            lv = p%level(i)
+            if (p%kind(i) == KIND_FLUID) then
+                counts(2 * lv + 1) = counts(2 * lv + 1) + 1
+                local(4 * lv + 1) = local(4 * lv + 1) + p%m(i)
+                local(4 * lv + 2:4 * lv + 4) = local(4 * lv + 2:4 * lv + 4) + p%m(i) * p%v(:, i)
+            else if (p%kind(i) == KIND_VIRTUAL) then
+                counts(2 * lv + 2) = counts(2 * lv + 2) + 1
+            end if
+        end do
+        local = global_sum(env, local)
+        counts = global_sum(env, counts)
+        do lv = 0, n_levels - 1
+            n_real(lv) = counts(2 * lv + 1)
+            n_virtual(lv) = counts(2 * lv + 2)
+            mass(lv) = local(4 * lv + 1)
+            momentum(:, lv) = local(4 * lv + 2:4 * lv + 4)
+        end do
+    end subroutine level_totals
+end module sph_transition_driver
