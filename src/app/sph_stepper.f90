@@ -908,7 +908,7 @@ contains
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
         if (.not. multires(sim)) return
-        call update_transition_zones_of(env, sim%zones, sim%level_phys, sim%domain, &
+        call update_transition_zones_of(env, sim%zones, sim%level_phys, sim%solids, sim%domain, &
             sim%cfg%domain%box_lo, sim%cfg%domain%box_hi, sim%p, sim%next_id, sim%level_stats)
         call simulation_prepare_neighbours(sim, env)
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)

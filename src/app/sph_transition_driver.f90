@@ -34,7 +34,7 @@ module sph_transition_driver
         particles_gather, particles_clear, particles_pack, particles_unpack, pack_widths, &
         ALL_FIELDS, KIND_FLUID, KIND_WALL, KIND_VIRTUAL, moves_with_flow
     use sph_physics, only: physics_t
-    use sph_solids, only: solids_t
+    use sph_solids, only: solids_t, deepest_solid
     use sph_domain, only: domain_t, domain_owner
     use sph_zones, only: zones_t, MAX_LEVEL
     use sph_initial, only: create_lattice_particles
@@ -68,6 +68,7 @@ module sph_transition_driver
         real(wp), allocatable :: x(:, :)
         real(wp), allocatable :: f(:, :)   !< velocity (3), density, energy, mass
         integer(i8), allocatable :: id(:)
+        integer, allocatable :: parity(:)
     end type new_set_t
 
 contains
@@ -142,10 +143,11 @@ contains
     !> owned particles lie in this rank's subdomain and the ghosts are current; on exit the
     !> owned set has changed and the ghosts are stale (the caller rebuilds them).
     !> next_id: the next unused global id base, the same on every rank, advanced here.
-    subroutine update_transition_zones(env, zones, level_phys, domain, box_lo, box_hi, p, &
-            next_id, stats)
+    subroutine update_transition_zones(env, zones, level_phys, solids, domain, box_lo, box_hi, &
+            p, next_id, stats)
         type(mpi_env_t), intent(in) :: env
         type(zones_t), intent(in) :: zones
+        type(solids_t), intent(in) :: solids
         type(physics_t), intent(in) :: level_phys(0:)
         type(domain_t), intent(in) :: domain
         real(wp), intent(in) :: box_lo(3), box_hi(3)
@@ -227,13 +229,17 @@ contains
             logical, allocatable :: take(:)
             real(wp), allocatable :: xs(:, :), xn(:, :), fs(:, :)
             integer(i8), allocatable :: ids(:), vid(:)
+            integer, allocatable :: par(:), new_parity(:)
             real(wp) :: reach, dx_source, y(3), factor
             character(len=256) :: msg
             dx_source = level_phys(source)%dx
             reach = zones%width + SOURCE_MARGIN * dx_source
             allocate(take(p%n_owned + p%n_ghost))
             do j = 1, p%n_owned + p%n_ghost
-                take(j) = p%level(j) == source .and. moves_with_flow(p%kind(j))
+                ! refining also builds on the source level's wall particles, so the cells
+                ! between the first fluid row and the wall give the fine row next to the wall
+                take(j) = p%level(j) == source .and. (moves_with_flow(p%kind(j)) .or. &
+                    (target > source .and. p%kind(j) == KIND_WALL))
                 if (take(j)) take(j) = zones%distance_to_level(p%x(:, j), target) < reach
             end do
             src = pack([(j, j = 1, p%n_owned + p%n_ghost)], take)
@@ -263,10 +269,11 @@ contains
             msg = ''
             if (target > source) then
                 call fine_virtual_positions(dim, target, n_src, xs, ids, dx_source, n_new, xn, &
-                    vid, st, msg)
+                    vid, new_parity, st, msg)
             else
-                call coarse_virtual_positions(dim, target, n_src, xs, ids, dx_source, box_lo, &
-                    n_new, xn, vid, st, msg)
+                par = p%parity(src)
+                call coarse_virtual_positions(dim, target, n_src, xs, ids, par, dx_source, &
+                    box_lo, n_new, xn, vid, new_parity, st, msg)
             end if
             if (st /= 0) then
                 stat = st
@@ -278,6 +285,7 @@ contains
             do j = 1, n_new
                 y = xn(:, j)
                 take(j) = .not. any(y(1:dim) < box_lo(1:dim) .or. y(1:dim) >= box_hi(1:dim))
+                if (take(j)) take(j) = deepest_solid(solids, y, 0.0_wp) == 0
                 if (take(j)) take(j) = zones%level_at(y) == source
                 if (take(j)) take(j) = zones%in_transition(y, target)
                 if (take(j)) take(j) = domain_owner(domain, y) == domain%rank
@@ -288,9 +296,13 @@ contains
             allocate(set%x(3, max(set%n, 1)), set%id(max(set%n, 1)), set%f(6, max(set%n, 1)))
             set%x(:, 1:set%n) = xn(:, keep_new)
             set%id(1:set%n) = vid(keep_new)
-            ! fields from the source level: velocity, density, energy, mass
+            set%parity = new_parity(keep_new)
+            ! fields from the source level's fluid: velocity, density, energy, mass
+            src = pack(src, moves_with_flow(p%kind(src)))
+            n_src = size(src)
             allocate(fs(6, max(n_src, 1)))
             do j = 1, n_src
+                xs(:, j) = p%x(:, src(j))
                 fs(1:3, j) = p%v(:, src(j))
                 fs(4, j) = p%rho(src(j))
                 fs(5, j) = p%e(src(j))
@@ -311,6 +323,7 @@ contains
                         a = a + 1
                         set%x(:, a) = set%x(:, j)
                         set%id(a) = set%id(j)
+                        set%parity(a) = set%parity(j)
                         set%f(:, a) = set%f(:, j)
                     end if
                 end do
@@ -340,6 +353,7 @@ contains
                 p%id(n) = set%id(j)
                 p%kind(n) = KIND_VIRTUAL
                 p%level(n) = set%level
+                p%parity(n) = set%parity(j)
             end do
             p%n_owned = p%n_owned + set%n
             p%n_total = p%n_owned

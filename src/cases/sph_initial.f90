@@ -57,6 +57,12 @@ contains
                     call add_particle(xi, linear, KIND_FLUID, [0.0_wp, 0.0_wp, 0.0_wp], 0.0_wp, &
                         [0.0_wp, 0.0_wp, 0.0_wp], 0)
                     p%m(p%n_owned) = fluid_mass
+                    ! odd lattice index along an axis: its bit set (sph_transition: the sites
+                    ! with even indices on every axis continue the lattice of twice the spacing)
+                    do axis = 1, cfg%domain%dimension
+                        if (mod(idx(axis), 2) == 1) p%parity(p%n_owned) = &
+                            ibset(p%parity(p%n_owned), axis - 1)
+                    end do
                 end do
             end do
         end do
@@ -206,6 +212,7 @@ contains
             p%id(n) = id
             p%kind(n) = kind
             p%level(n) = 0
+            p%parity(n) = 0
             p%solid(n) = solid_index
             p%n_owned = n
             p%n_total = n

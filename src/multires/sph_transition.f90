@@ -10,10 +10,21 @@
 !>    the virtual and real fine rows would be half a spacing out of step at the interface (a
 !>    gap of 1.5 dx_f on one side, a clump on the other). The translation moves the whole set
 !>    rigidly, so every relative position (the disorder) is kept.
-!>  - coarse virtuals from fine particles: sph_coarsen's selection (the lattice-parity
-!>    sublattice, one in 2^dim), translated by half a fine spacing along every axis: the parity
-!>    rule keeps the fine sites at (2 j + 1/2) dx_f, a quarter coarse spacing from the coarse
-!>    lattice (j + 1/2) dx.
+!>  - coarse virtuals from fine particles: sph_coarsen's selection (one in 2^dim), translated
+!>    back by half a fine spacing along every axis.
+!> Lattice parity. Every particle carries its parity (one bit per axis: odd along that axis),
+!> set where it is made and kept as it moves: on sph_initial's lattices from the site index
+!> (sites i = 1, 2, ... at (i - 1/2) dx), for a fine virtual from the refinement key: the
+!> child at a coarse particle's own site has parity 0, an edge midpoint is odd along the
+!> edge, a face or cube centre along the axes it spans. The coarsening keeps, first, the
+!> particles of parity 0 (sph_coarsen's given_match): on a lattice those are the sites
+!> (2 k - 1/2) dx_f, which continue the coarse lattice (k - 1/2) dx shifted by dx_f / 2; among
+!> refined particles they are the children at their parents' sites. Parity from positions
+!> (sph_coarsen's own rule) would flip the whole kept set by one fine spacing whenever the flow
+!> has carried the fine particles a quarter spacing past the lattice: the coarse virtuals
+!> would jump by half a coarse spacing against the coarse real particles they continue, and
+!> the fine virtuals refined from both would lose whole rows at the interface. Carried, the
+!> kept set moves with the flow.
 !> The driver hands in the source level's particles around the zone (real ones and the
 !> previous step's virtual ones, so the construction is complete across the interface) and
 !> keeps the new positions that lie in the zone.
@@ -81,57 +92,120 @@ contains
 
     !> Fine virtual positions (spacing dx/2) from particles x(:, 1:n) of spacing dx: the
     !> refinement construction translated by dx/4 per axis (see the header). vid: their ids.
-    subroutine fine_virtual_positions(dim, level, n, x, ids, dx, n_new, x_new, vid, stat, &
-            errmsg)
+    subroutine fine_virtual_positions(dim, level, n, x, ids, dx, n_new, x_new, vid, parity, &
+            stat, errmsg)
         integer, intent(in) :: dim, level, n
         real(wp), intent(in) :: x(:, :), dx
         integer(i8), intent(in) :: ids(:)
         integer, intent(out) :: n_new
         real(wp), allocatable, intent(out) :: x_new(:, :)
         integer(i8), allocatable, intent(out) :: vid(:)
+        integer, allocatable, intent(out) :: parity(:)
         integer, intent(out) :: stat
         character(len=*), intent(out) :: errmsg
-        integer(i8), allocatable :: key(:, :)
-        integer :: k
+        integer(i8), allocatable :: key(:, :), sorted_ids(:)
+        integer, allocatable :: order(:)
+        integer :: k, a, corner
         call refine_positions(dim, n, x, ids, dx, n_new, x_new, key, stat, errmsg)
-        allocate(vid(max(n_new, 0)))
-        if (stat /= 0) then
-            n_new = 0
-            return
-        end if
+        if (stat /= 0) n_new = 0
+        allocate(vid(max(n_new, 0)), parity(max(n_new, 0)))
+        if (n_new == 0) return
+        ! the corner a child's key starts from (its lowest id), found by bisection
+        order = sorted_order(ids(1:n))
+        sorted_ids = ids(order)
         do k = 1, n_new
+            parity(k) = 0
+            if (iand(key(1, k), 3_i8) /= 0_i8) then
+                corner = order(bisect(sorted_ids, shiftr(key(1, k), 2)))
+                do a = 1, dim
+                    if (abs(x_new(a, k) - x(a, corner)) > 0.25_wp * dx) &
+                        parity(k) = ibset(parity(k), a - 1)
+                end do
+            end if
             x_new(1:dim, k) = x_new(1:dim, k) + 0.25_wp * dx
             vid(k) = virtual_id(level, key(1, k), key(2, k))
         end do
     end subroutine fine_virtual_positions
 
-    !> Coarse virtual positions (spacing 2 dx) from particles x(:, 1:n) of spacing dx: the
-    !> coarsening selection (lattice parity measured from `origin`, the box's lower corner)
-    !> translated by dx/2 per axis (see the header). vid: their ids.
-    subroutine coarse_virtual_positions(dim, level, n, x, ids, dx, origin, n_new, x_new, vid, &
-            stat, errmsg)
+    !> Indices that sort v ascending (merge sort).
+    function sorted_order(v) result(order)
+        integer(i8), intent(in) :: v(:)
+        integer, allocatable :: order(:), tmp(:)
+        integer :: width, lo, mid, hi, a, b, c, n
+        n = size(v)
+        order = [(a, a = 1, n)]
+        allocate(tmp(n))
+        width = 1
+        do while (width < n)
+            lo = 1
+            do while (lo <= n)
+                mid = min(lo + width - 1, n)
+                hi = min(lo + 2 * width - 1, n)
+                a = lo; b = mid + 1; c = lo
+                do while (a <= mid .and. b <= hi)
+                    if (v(order(b)) < v(order(a))) then
+                        tmp(c) = order(b); b = b + 1
+                    else
+                        tmp(c) = order(a); a = a + 1
+                    end if
+                    c = c + 1
+                end do
+                tmp(c:c + mid - a) = order(a:mid)
+                c = c + mid - a + 1
+                tmp(c:c + hi - b) = order(b:hi)
+                order(lo:hi) = tmp(lo:hi)
+                lo = lo + 2 * width
+            end do
+            width = 2 * width
+        end do
+    end function sorted_order
+
+    !> Position of value in the ascending list s (it is there).
+    pure integer function bisect(s, value) result(k)
+        integer(i8), intent(in) :: s(:), value
+        integer :: lo, hi
+        lo = 1
+        hi = size(s)
+        do while (lo < hi)
+            k = (lo + hi) / 2
+            if (s(k) < value) then
+                lo = k + 1
+            else
+                hi = k
+            end if
+        end do
+        k = lo
+    end function bisect
+
+    !> Coarse virtual positions (spacing 2 dx) from particles x(:, 1:n) of spacing dx with
+    !> lattice parities src_parity: the coarsening selection, parity 0 first, translated by
+    !> -dx/2 per axis (see the header). vid: their ids; parity: theirs on the lattice of
+    !> spacing 4 dx measured from `origin` (the box's lower corner: only a third level uses it).
+    subroutine coarse_virtual_positions(dim, level, n, x, ids, src_parity, dx, origin, n_new, &
+            x_new, vid, parity, stat, errmsg)
         integer, intent(in) :: dim, level, n
         real(wp), intent(in) :: x(:, :), dx, origin(3)
         integer(i8), intent(in) :: ids(:)
+        integer, intent(in) :: src_parity(:)
         integer, intent(out) :: n_new
         real(wp), allocatable, intent(out) :: x_new(:, :)
         integer(i8), allocatable, intent(out) :: vid(:)
+        integer, allocatable, intent(out) :: parity(:)
         integer, intent(out) :: stat
         character(len=*), intent(out) :: errmsg
-        real(wp), allocatable :: x_rel(:, :)
         integer, allocatable :: kept(:), tag(:)
         integer :: k, a
-        allocate(x_rel(3, max(n, 1)))
-        do k = 1, n
-            x_rel(:, k) = x(:, k) - origin
-        end do
-        call coarsen_select(dim, n, x_rel, ids, dx, n_new, kept, tag, stat, errmsg)
+        call coarsen_select(dim, n, x, ids, dx, n_new, kept, tag, stat, errmsg, &
+            given_match=src_parity(1:n) == 0)
         if (stat /= 0) n_new = 0
-        allocate(x_new(3, max(n_new, 1)), vid(max(n_new, 0)))
+        allocate(x_new(3, max(n_new, 1)), vid(max(n_new, 0)), parity(max(n_new, 0)))
         do k = 1, n_new
             x_new(:, k) = x(:, kept(k))
+            parity(k) = 0
             do a = 1, dim
-                x_new(a, k) = x_new(a, k) + 0.5_wp * dx
+                x_new(a, k) = x_new(a, k) - 0.5_wp * dx
+                if (mod(nint((x_new(a, k) - origin(a)) / (2.0_wp * dx) + 0.5_wp), 2) == 1) &
+                    parity(k) = ibset(parity(k), a - 1)
             end do
             vid(k) = virtual_id(level, ids(kept(k)), 0_i8)
         end do

@@ -93,6 +93,10 @@ module sph_particles
         integer, allocatable :: kind(:)         !< KIND_*
         integer, allocatable :: level(:)        !< resolution level, 0 = coarsest
         integer, allocatable :: solid(:)        !< the solid a wall particle belongs to, 0: none
+        !> lattice parity per axis (bit a-1 set: odd along axis a), carried with the particle:
+        !> multi-resolution zones keep the particles with parity 0 when coarsening (see
+        !> sph_transition)
+        integer, allocatable :: parity(:)
         ! real fields added at run time (particles_add_field): extra(k)%a(width, capacity)
         type(extra_field_t), allocatable :: extra(:)
     end type particles_t
@@ -221,6 +225,8 @@ contains
         call op%int4(p%kind, field_info_t('kind', 1, snap + ghost, FIELD_INT))
         call op%int4(p%level, field_info_t('level', 1, snap + ghost, FIELD_INT))
         call op%int4(p%solid, field_info_t('solid', 1, snap + FIELD_OPTIONAL + ghost, FIELD_INT))
+        call op%int4(p%parity, field_info_t('lattice_parity', 1, ckpt + FIELD_OPTIONAL + ghost, &
+            FIELD_INT))
         if (.not. allocated(p%extra)) return
         do k = 1, size(p%extra)
             call op%real2(p%extra(k)%a, p%extra(k)%info)

@@ -75,7 +75,12 @@ contains
 
     !> Select the particles kept when coarsening a set of spacing dx by 2 per axis.
     !> kept(1:n_kept): indices (ascending) of the kept particles; tag(1:n): the tag classes.
-    subroutine coarsen_select(dim, n, x, ids, dx, n_kept, kept, tag, stat, errmsg, box)
+    !> given_match(1:n), when present, replaces the parity estimated from positions (step 1):
+    !> a caller that knows each particle's lattice parity (particles carry it through a run,
+    !> sph_transition) gets a kept set that moves with the flow instead of jumping when the
+    !> flow has carried the particles past PHASE_CUT.
+    subroutine coarsen_select(dim, n, x, ids, dx, n_kept, kept, tag, stat, errmsg, box, &
+            given_match)
         integer, intent(in) :: dim, n
         real(wp), intent(in) :: x(:, :), dx
         integer(i8), intent(in) :: ids(:)
@@ -85,6 +90,7 @@ contains
         integer, intent(out), optional :: stat
         character(len=*), intent(out), optional :: errmsg
         real(wp), intent(in), optional :: box(3)
+        logical, intent(in), optional :: given_match(:)
         real(wp) :: r_conflict, r_row, bx(3), rc2
         logical :: periodic
         integer, allocatable :: astart(:), adj(:), order(:)
@@ -131,6 +137,7 @@ contains
             end if
         end do
         call adjacency_and_parity()
+        if (present(given_match)) match = given_match(1:n)
         call sort_order(order)
 
         tag = 0
