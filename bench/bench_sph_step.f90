@@ -5,26 +5,19 @@
 !>   mpirun -np N build/bin/sphremesh_bench [steps]
 program bench_sph_step
     use sph_kinds, only: wp, i8
-    use sph_mpi_env, only: mpi_env_t, mpi_env_init_world, mpi_env_free, global_sum, global_max
-    use sph_config, only: config_t, config_parse
-    use sph_stepper, only: simulation_t, simulation_setup, simulation_step
+    use sph_mpi_env, only: mpi_env_t, mpi_env_free, global_sum, global_max
+    use bench_support, only: bench_start, bench_case
+    use sph_stepper, only: simulation_t, simulation_step
     use sph_cell_list, only: neighbour_list_t, build_neighbour_list
-    use sph_logger, only: logger_init, VERBOSITY_QUIET
     use mpi_f08, only: MPI_Finalize, MPI_Barrier, MPI_Wtime
     implicit none
 
     type(mpi_env_t) :: env
     integer :: steps, ierr, k
-    character(len=32) :: arg
     integer, parameter :: sizes_2d(3) = [64, 128, 256], sizes_3d(2) = [16, 32]
 
-    call mpi_env_init_world(env)
-    call logger_init(env%rank, VERBOSITY_QUIET)
     steps = 20
-    if (command_argument_count() >= 1) then
-        call get_command_argument(1, arg)
-        read(arg, *) steps
-    end if
+    call bench_start(env, steps)
     if (env%rank == 0) then
         write(*, '(a,i0,a)') '# sphremesh benchmark, ', env%nranks, ' rank(s)'
         write(*, '(a)') '# case            particles  neighbours/particle  step[s]' // &
@@ -43,11 +36,10 @@ contains
 
     subroutine run_case(dim, n)
         integer, intent(in) :: dim, n
-        type(config_t) :: cfg
         type(simulation_t) :: sim
         type(neighbour_list_t) :: nl
-        integer :: stat, s
-        character(len=:), allocatable :: msg, text
+        integer :: s
+        character(len=:), allocatable :: text
         character(len=32) :: dim_text, dx_text
         real(wp) :: t0, t_step, t_search, pairs, c0, c_step, c_search
         integer(i8) :: n_total
@@ -56,14 +48,7 @@ contains
         text = "&run case_name='bench' /" // new_line('a') // "&domain dimension=" // &
             trim(dim_text) // ", box_hi=1.0, 1.0, 1.0, dx=" // trim(dx_text) // " /" // &
             new_line('a') // "&fluid nu=1.0e-2, sound_speed=1.0 /" // new_line('a')
-        call config_parse(cfg, text, 'bench', stat, msg)
-        if (stat /= 0) then
-            write(*, '(a)') msg
-            error stop 1
-        end if
-        call simulation_setup(sim, env, cfg)
-        call simulation_step(sim, env)   ! warm-up
-        call MPI_Barrier(env%comm)
+        call bench_case(env, text, sim)
         t0 = MPI_Wtime()
         call cpu_time(c0)
         do s = 1, steps

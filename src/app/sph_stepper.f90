@@ -4,6 +4,7 @@
 !> build and refresh between the stages of a step); the physics modules it calls make no MPI
 !> calls. When to write, log and stop is decided by sph_schedule; the loop is sph_simulation.
 module sph_stepper
+    use mpi_f08, only: MPI_Wtime
     use sph_kinds, only: wp, i8
     use sph_config, only: config_t, config_to_text
     use sph_mpi_env, only: mpi_env_t, global_sum, global_max, global_min, broadcast_text
@@ -50,7 +51,8 @@ module sph_stepper
         remesh_spacing_factor, REMESH_NONE, REMESH_SAME
     use sph_zones, only: zones_t, zones_create
     use sph_transition_driver, only: level_stats_t, create_level_particles, &
-        update_transition_zones_of => update_transition_zones, level_totals
+        update_transition_zones_of => update_transition_zones, level_totals, &
+        refresh_virtual_fields
     implicit none
     private
     public :: simulation_solid_forces, simulation_write_forces, simulation_log_forces
@@ -94,6 +96,9 @@ module sph_stepper
         integer(i8) :: next_id = 0
         type(level_stats_t) :: level_stats
         real(wp), allocatable :: first_level_mass(:)   !< real mass per level at the start
+        !> wall seconds spent in the transition zones' updates (with their rebuild) so far
+        real(wp) :: transition_seconds = 0.0_wp
+        logical :: zones_due = .false.   !< the zones are made anew after this step
     end type simulation_t
 
 contains
@@ -695,14 +700,22 @@ contains
     subroutine migrate_and_rebuild(sim, env)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
+        real(wp) :: start
         sim%drift = sim%drift + global_max(env, max_step_displacement(sim%p))
-        ! with transition zones the particle set changes every step: rebuild every step
-        if (2.0_wp * sim%drift < 0.5_wp * sim%list_skin .and. .not. multires(sim)) then
+        if (2.0_wp * sim%drift < 0.5_wp * sim%list_skin) then
             call halo_refresh(sim%halo, env, sim%p, HALO_MOVE)
             if (uses_mirrors(sim)) call refresh_neighbours(sim)
+            if (multires(sim)) then
+                ! the virtual particles take the other level's fields where they now are
+                start = MPI_Wtime()
+                call refresh_virtual_fields(sim%zones, sim%level_phys, sim%p, sim%level_stats)
+                call halo_refresh(sim%halo, env, sim%p, HALO_MOVE)
+                sim%transition_seconds = sim%transition_seconds + (MPI_Wtime() - start)
+            end if
         else
             call migrate_particles(sim%domain, env, sim%p)
             call simulation_prepare_neighbours(sim, env)
+            sim%zones_due = multires(sim)
         end if
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
     end subroutine migrate_and_rebuild
@@ -903,15 +916,25 @@ contains
     end subroutine simulation_remesh_file
 
     !> Multi-resolution: conversions and new virtual particles in the transition zones
-    !> (sph_transition_driver), then the halo and the neighbour list for the new set.
+    !> (sph_transition_driver), then the halo and the neighbour list for the new set. The
+    !> zones are made anew whenever the Verlet list is (migrate_and_rebuild: particles have
+    !> moved a twentieth of a smoothing length since the last time); in between, the
+    !> virtual particles move with the flow and take the other level's fields every step
+    !> (refresh_virtual_fields). The thesis makes them anew every step; at the time steps of
+    !> low-Reynolds-number flows particles move about 1e-4 spacings per step, so that would
+    !> make the same set again and again, and rebuild the neighbour list every step.
     subroutine update_transition_zones(sim, env)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
-        if (.not. multires(sim)) return
+        real(wp) :: start
+        if (.not. sim%zones_due) return
+        sim%zones_due = .false.
+        start = MPI_Wtime()
         call update_transition_zones_of(env, sim%zones, sim%level_phys, sim%solids, sim%domain, &
             sim%cfg%domain%box_lo, sim%cfg%domain%box_hi, sim%p, sim%next_id, sim%level_stats)
         call simulation_prepare_neighbours(sim, env)
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+        sim%transition_seconds = sim%transition_seconds + (MPI_Wtime() - start)
     end subroutine update_transition_zones
 
     !> Per level: real and virtual particles, conversions per step since the last call, real
@@ -944,10 +967,12 @@ contains
                 crossed(n + lv + 1), '), momentum', momentum(:, lv)
             call log_info(trim(line))
         end do
-        write(line, '(a,es16.9,a,es10.3,a,i0,a,i0)') '  all levels: real mass ', sum(mass), &
-            ' kg (drift ', (sum(mass) - sum(sim%first_level_mass)) / sum(sim%first_level_mass), &
-            '); interpolation fallbacks ', global_sum(env, sim%level_stats%fallbacks), &
-            ', virtuals without sources ', global_sum(env, sim%level_stats%empty)
+        write(line, '(a,es16.9,a,es10.3,a,i0,a,i0,a,i0)') '  all levels: real mass ', &
+            sum(mass), ' kg (drift ', (sum(mass) - sum(sim%first_level_mass)) / &
+            sum(sim%first_level_mass), '); interpolation fallbacks ', &
+            global_sum(env, sim%level_stats%fallbacks), ', clipped ', &
+            global_sum(env, sim%level_stats%clipped), ', virtuals without sources ', &
+            global_sum(env, sim%level_stats%empty)
         call log_info(trim(line))
         sim%level_stats = level_stats_t()
     end subroutine simulation_log_levels

@@ -44,6 +44,7 @@ module sph_transition_driver
     implicit none
     private
     public :: level_stats_t, create_level_particles, update_transition_zones, level_totals
+    public :: refresh_virtual_fields
 
     !> Source particles are taken within the zone width plus SOURCE_MARGIN source spacings:
     !> enough for the refinement's cells (<= 1.8 dx), the coarsening's rows and tagging chains
@@ -59,6 +60,7 @@ module sph_transition_driver
         integer(i8) :: updates = 0
         integer(i8) :: fallbacks = 0                  !< interpolations below first order
         integer(i8) :: empty = 0                      !< virtuals with no source in reach
+        integer(i8) :: clipped = 0                    !< values clipped to their sources' range
     end type level_stats_t
 
     !> New virtual particles of one level, before they join the particle set.
@@ -224,7 +226,7 @@ contains
         subroutine make_virtuals(target, source, set)
             integer, intent(in) :: target, source
             type(new_set_t), intent(out) :: set
-            integer :: j, n_src, n_new, n_fb, n_empty, a, st
+            integer :: j, n_src, n_new, n_fb, n_empty, n_clip, a, st
             integer, allocatable :: src(:), keep_new(:), order(:)
             logical, allocatable :: take(:)
             real(wp), allocatable :: xs(:, :), xn(:, :), fs(:, :)
@@ -309,7 +311,8 @@ contains
                 fs(6, j) = p%m(src(j))
             end do
             call interpolate_fields(dim, dx_source, n_src, xs, fs, set%n, set%x, set%f, n_fb, &
-                n_empty)
+                n_empty, n_clip, clip=[.false., .false., .false., .true., .false., .true.])
+            stats%clipped = stats%clipped + n_clip
             factor = 2.0_wp**(dim * (source - target))
             set%f(6, 1:set%n) = set%f(6, 1:set%n) * factor
             stats%fallbacks = stats%fallbacks + n_fb
@@ -359,6 +362,75 @@ contains
             p%n_total = p%n_owned
         end subroutine append_set
     end subroutine update_transition_zones
+
+    !> Between two updates of the zones: every owned virtual particle takes the velocity,
+    !> density and energy of the level whose real particles are where it now is,
+    !> interpolated as when it was made (sph_transition); positions and masses stay. Every
+    !> value is computed from the state on entry and written at the end: virtual particles of
+    !> one level are sources for those of the other, and their ghosts on other ranks still
+    !> hold the entry state. Needs current ghosts; no MPI.
+    subroutine refresh_virtual_fields(zones, level_phys, p, stats)
+        type(zones_t), intent(in) :: zones
+        type(physics_t), intent(in) :: level_phys(0:)
+        type(particles_t), intent(inout) :: p
+        type(level_stats_t), intent(inout) :: stats
+        integer :: target, source, j, n_fb, n_empty, n_clip, dim
+        integer, allocatable :: dst(:), src(:)
+        logical, allocatable :: take(:), changed(:)
+        real(wp), allocatable :: xs(:, :), fs(:, :), xd(:, :), fd(:, :), new_fields(:, :)
+        real(wp) :: reach
+        dim = p%dim
+        allocate(new_fields(5, p%n_owned), changed(p%n_owned))
+        changed = .false.
+        do target = 0, zones%n_levels - 1
+            do source = max(target - 1, 0), min(target + 1, zones%n_levels - 1)
+                if (source == target) cycle
+                allocate(take(p%n_owned))
+                do j = 1, p%n_owned
+                    take(j) = p%kind(j) == KIND_VIRTUAL .and. p%level(j) == target
+                    if (take(j)) take(j) = zones%level_at(p%x(:, j)) == source
+                end do
+                dst = pack([(j, j = 1, p%n_owned)], take)
+                deallocate(take)
+                if (size(dst) == 0) cycle
+                reach = zones%width + SOURCE_MARGIN * level_phys(source)%dx
+                allocate(take(p%n_owned + p%n_ghost))
+                do j = 1, p%n_owned + p%n_ghost
+                    take(j) = p%level(j) == source .and. moves_with_flow(p%kind(j))
+                    if (take(j)) take(j) = zones%distance_to_level(p%x(:, j), target) < reach
+                end do
+                src = pack([(j, j = 1, p%n_owned + p%n_ghost)], take)
+                deallocate(take)
+                allocate(xs(3, max(size(src), 1)), fs(5, max(size(src), 1)))
+                allocate(xd(3, size(dst)), fd(5, size(dst)))
+                do j = 1, size(src)
+                    xs(:, j) = p%x(:, src(j))
+                    fs(1:3, j) = p%v(:, src(j))
+                    fs(4, j) = p%rho(src(j))
+                    fs(5, j) = p%e(src(j))
+                end do
+                xd = p%x(:, dst)
+                call interpolate_fields(dim, level_phys(source)%dx, size(src), xs, fs, &
+                    size(dst), xd, fd, n_fb, n_empty, n_clip, &
+                    clip=[.false., .false., .false., .true., .false.])
+                stats%fallbacks = stats%fallbacks + n_fb
+                stats%clipped = stats%clipped + n_clip
+                stats%empty = stats%empty + n_empty
+                do j = 1, size(dst)
+                    if (fd(4, j) <= 0.0_wp) cycle   ! no source in reach: keep what it has
+                    new_fields(:, dst(j)) = fd(:, j)
+                    changed(dst(j)) = .true.
+                end do
+                deallocate(xs, fs, xd, fd)
+            end do
+        end do
+        do j = 1, p%n_owned
+            if (.not. changed(j)) cycle
+            p%v(:, j) = new_fields(1:3, j)
+            p%rho(j) = new_fields(4, j)
+            p%e(j) = new_fields(5, j)
+        end do
+    end subroutine refresh_virtual_fields
 
     !> Per level (0:n_levels-1): real and virtual counts, real mass and momentum (collective).
     subroutine level_totals(env, p, n_levels, n_real, n_virtual, mass, momentum)

@@ -38,7 +38,9 @@
 !> q(0), q = (1, d, d d^T). A quadratic field (Poiseuille's profile) is reproduced to
 !> round-off on any arrangement with enough sources. Where the moment matrix is not safely
 !> invertible (one-sided or sparse sources) the linear form is used, and where that fails
-!> too, the Shepard (normalised) mean; fallbacks are counted.
+!> too, the Shepard (normalised) mean; fallbacks are counted. Densities and masses outside
+!> the range of the sources that carry weight (least squares extrapolating from one-sided
+!> sources) are clipped to that range, so no new extremes appear (counted too).
 !> Virtual particles have negative ids: -(1 + hash of what made them, 62 bits), so they never
 !> collide with a real particle's id; a virtual that turns real gets a fresh global id.
 !> Serial, no MPI.
@@ -216,11 +218,16 @@ contains
     !> source in reach keeps f_dst = 0 and is counted in n_empty; n_fallback counts targets
     !> that needed the M4 or Shepard fallback.
     subroutine interpolate_fields(dim, h, n_src, x_src, f_src, n_dst, x_dst, f_dst, &
-            n_fallback, n_empty)
+            n_fallback, n_empty, n_clipped, clip)
         integer, intent(in) :: dim, n_src, n_dst
         real(wp), intent(in) :: h, x_src(:, :), f_src(:, :), x_dst(:, :)
         real(wp), intent(out) :: f_dst(:, :)
         integer, intent(out) :: n_fallback, n_empty
+        integer, intent(out) :: n_clipped   !< values clipped to their sources' range
+        !> the fields to clip (default none): density and mass, never a velocity, whose
+        !> profile next to a wall lies beyond all its one-sided sources
+        logical, intent(in), optional :: clip(:)
+        real(wp) :: lo_f, hi_f
         real(wp), allocatable :: x_all(:, :)
         type(neighbour_list_t) :: nl
         integer :: a, k, j, nf
@@ -233,6 +240,7 @@ contains
         nf = size(f_src, 1)
         n_fallback = 0
         n_empty = 0
+        n_clipped = 0
         if (n_dst <= 0) return
         f_dst(:, 1:n_dst) = 0.0_wp
         allocate(x_all(3, n_dst + n_src))
@@ -268,6 +276,23 @@ contains
             end if
             do k = 1, n_near
                 f_dst(1:nf, a) = f_dst(1:nf, a) + phi_weights(k) * f_src(1:nf, near(k))
+            end do
+            ! no new extremes: a value outside the range of the sources with weight (one-sided
+            ! sources at a cloud's edge make least squares extrapolate) is clipped to it
+            do j = 1, nf
+                if (.not. present(clip)) exit
+                if (.not. clip(j)) cycle
+                lo_f = huge(1.0_wp)
+                hi_f = -huge(1.0_wp)
+                do k = 1, n_near
+                    if (phi_weights(k) == 0.0_wp) cycle
+                    lo_f = min(lo_f, f_src(j, near(k)))
+                    hi_f = max(hi_f, f_src(j, near(k)))
+                end do
+                if (f_dst(j, a) < lo_f .or. f_dst(j, a) > hi_f) then
+                    n_clipped = n_clipped + 1
+                    f_dst(j, a) = min(max(f_dst(j, a), lo_f), hi_f)
+                end if
             end do
         end do
     end subroutine interpolate_fields
