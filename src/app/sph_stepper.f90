@@ -40,7 +40,7 @@ module sph_stepper
     use sph_checkpoint, only: write_checkpoint, read_checkpoint, checkpoint_filename, &
         find_latest_checkpoint
     use sph_xdmf, only: xdmf_index_entry, write_xdmf
-    use sph_filesystem, only: delete_file
+    use sph_filesystem, only: delete_file, make_directories
     use sph_version, only: code_version
     use sph_config, only: config_parse
     use sph_snapshot, only: read_snapshot_header, read_snapshot_rows
@@ -52,7 +52,7 @@ module sph_stepper
     use sph_zones, only: zones_t, zones_create
     use sph_transition_driver, only: level_stats_t, create_level_particles, &
         update_transition_zones_of => update_transition_zones, level_totals, &
-        refresh_virtual_fields
+        refresh_virtual_fields, refine_uniform_state
     implicit none
     private
     public :: simulation_solid_forces, simulation_write_forces, simulation_log_forces
@@ -269,6 +269,7 @@ contains
             call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
             call migrate_particles(sim%domain, env, sim%p)
         end if
+        call refine_if_uniform(sim, env)
         call halo_setup(sim%halo, sim%domain, halo_reach(sim))
         call simulation_prepare_neighbours(sim, env)
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
@@ -281,6 +282,27 @@ contains
             'the one stored in the checkpoint; the new input is used')
         call log_setup(sim, env)
     end subroutine simulation_restart
+
+    !> A checkpoint of a uniform run continued with &region groups: the regions are refined
+    !> (sph_transition_driver refine_uniform_state) and the decomposition rebalanced.
+    subroutine refine_if_uniform(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        integer(i8) :: before
+        character(len=160) :: line
+        if (.not. multires(sim)) return
+        if (global_max(env, int(maxval(sim%p%level(1:sim%p%n_owned), &
+            mask=sim%p%n_owned > 0), i8)) > 0) return
+        before = global_sum(env, int(sim%p%n_owned, i8))
+        sim%next_id = global_max_id(env, sim%p%id, sim%p%n_owned)
+        call refine_uniform_state(env, sim%cfg, sim%level_phys, sim%solids, sim%domain, &
+            sim%zones, sim%p, sim%next_id)
+        call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
+        call migrate_particles(sim%domain, env, sim%p)
+        write(line, '(a,i0,a,i0,a)') 'restart: the checkpoint is uniform; its regions were ' // &
+            'refined (', before, ' -> ', global_sum(env, int(sim%p%n_owned, i8)), ' particles)'
+        call log_info(trim(line))
+    end subroutine refine_if_uniform
 
     subroutine log_setup(sim, env)
         type(simulation_t), intent(in) :: sim
@@ -475,8 +497,12 @@ contains
             '_forces.csv'
         stat = 0
         if (env%rank == 0) then
+            ! a restart into a new output folder writes its forces before any snapshot
+            call make_directories(trim(sim%cfg%output%output_dir), stat)
             inquire(file=path, exist=exists)
-            if (fresh .or. .not. exists) then
+            if (stat /= 0) then
+                continue
+            else if (fresh .or. .not. exists) then
                 open(newunit=unit, file=path, status='replace', action='write', iostat=stat)
                 if (stat == 0) write(unit, '(a)') 'time,step,body,Fx,Fy,Fz,Fx_pressure,' // &
                     'Fy_pressure,Fz_pressure,Fx_viscous,Fy_viscous,Fz_viscous'

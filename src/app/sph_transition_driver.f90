@@ -27,7 +27,8 @@
 !> levels together, and how much crossed.
 module sph_transition_driver
     use sph_kinds, only: wp, i8
-    use sph_mpi_env, only: mpi_env_t, global_sum, global_max
+    use sph_mpi_env, only: mpi_env_t, global_sum, global_max, exclusive_scan_i8
+    use sph_remesh_images, only: with_periodic_images
     use sph_errors, only: fatal_collective
     use sph_config, only: config_t
     use sph_particles, only: particles_t, particles_init, particles_free, particles_reserve, &
@@ -44,7 +45,7 @@ module sph_transition_driver
     implicit none
     private
     public :: level_stats_t, create_level_particles, update_transition_zones, level_totals
-    public :: refresh_virtual_fields
+    public :: refresh_virtual_fields, refine_uniform_state
 
     !> Source particles are taken within the zone width plus SOURCE_MARGIN source spacings:
     !> enough for the refinement's cells (<= 1.8 dx), the coarsening's rows and tagging chains
@@ -431,6 +432,174 @@ contains
             p%e(j) = new_fields(5, j)
         end do
     end subroutine refresh_virtual_fields
+
+    !> A uniform state (level 0 only, e.g. a checkpoint of a uniform run) turned into the
+    !> levels of `zones` (collective): for each level L >= 1 in turn, every rank refines the
+    !> same set, the real fluid particles of level L-1 near L's region (all ranks', with their
+    !> periodic images), as the transition zones do (sph_transition: positions, parities,
+    !> fields by quadratic MLS; masses rho dx_L^dim), and keeps its own positions in L's
+    !> region (real, fresh ids from next_id in the refinement's output order, the same on any
+    !> rank count) and zone (virtual); level L's wall particles come from its lattice. The
+    !> particles of level L-1 inside L's region turn virtual within the zone and are deleted
+    !> deeper. On entry the owned particles lie in this rank's subdomain; ghosts are stale on
+    !> exit.
+    subroutine refine_uniform_state(env, cfg, level_phys, solids, domain, zones, p, next_id)
+        type(mpi_env_t), intent(in) :: env
+        type(config_t), intent(in) :: cfg
+        type(physics_t), intent(in) :: level_phys(0:)
+        type(solids_t), intent(in) :: solids
+        type(domain_t), intent(in) :: domain
+        type(zones_t), intent(in) :: zones
+        type(particles_t), intent(inout) :: p
+        integer(i8), intent(inout) :: next_id
+        integer :: lv, dim, j, k, a, n_here, n_all, ntot, n_new, st, n_fb, n_empty, n_clip, n
+        integer :: n_real, n_int, c
+        integer(i8) :: first
+        integer, allocatable :: here(:), order(:), orig(:), parity(:), keep(:)
+        real(wp), allocatable :: xs(:, :), fs(:, :), xa(:, :), fa(:, :), xn(:, :), fn(:, :)
+        real(wp), allocatable :: rbuf(:, :)
+        integer(i8), allocatable :: ids(:), ida(:), vid(:), ibuf(:, :)
+        real(wp) :: box(3), y(3), reach
+        logical, allocatable :: drop(:), wanted(:)
+        logical :: is_real
+        character(len=256) :: msg
+        type(config_t) :: level_cfg
+        type(particles_t) :: lattice
+
+        dim = cfg%domain%dimension
+        do lv = 1, zones%n_levels - 1
+            ! every rank's real fluid of level lv - 1 near lv's region, on every rank
+            reach = zones%width + SOURCE_MARGIN * level_phys(lv - 1)%dx
+            here = pack([(j, j = 1, p%n_owned)], p%kind(1:p%n_owned) == KIND_FLUID .and. &
+                p%level(1:p%n_owned) == lv - 1)
+            here = pack(here, [(zones%distance_to_level(p%x(:, here(j)), lv) < reach, &
+                j = 1, size(here))])
+            n_here = size(here)
+            n_all = int(global_sum(env, int(n_here, i8)))
+            first = exclusive_scan_i8(env, int(n_here, i8))
+            allocate(xs(3, n_all), fs(5, n_all), ids(n_all))
+            xs = 0.0_wp
+            fs = 0.0_wp
+            ids = 0
+            do j = 1, n_here
+                xs(:, first + j) = p%x(:, here(j)) - cfg%domain%box_lo
+                fs(1:3, first + j) = p%v(:, here(j))
+                fs(4, first + j) = p%rho(here(j))
+                fs(5, first + j) = p%e(here(j))
+                ids(first + j) = p%id(here(j))
+            end do
+            xs = reshape(global_sum(env, reshape(xs, [3 * n_all])), [3, n_all])
+            fs = reshape(global_sum(env, reshape(fs, [5 * n_all])), [5, n_all])
+            ids = global_sum(env, ids)
+            allocate(order(n_all))
+            call id_order(ids, n_all, order)
+            xs = xs(:, order)
+            fs = fs(:, order)
+            ids = ids(order)
+            ! periodic images within reach of the box (other axes: too far to matter)
+            box = 0.0_wp
+            do a = 1, dim
+                box(a) = cfg%domain%box_hi(a) - cfg%domain%box_lo(a)
+                if (.not. cfg%domain%is_periodic(a)) box(a) = 4.0_wp * box(a) + reach
+            end do
+            call with_periodic_images(dim, n_all, xs, .true., box, reach, xa, orig, ntot)
+            allocate(ida(ntot), fa(5, ntot))
+            do k = 1, ntot
+                ida(k) = image_source_id(ids(orig(k)), xa(:, k), [0.0_wp, 0.0_wp, 0.0_wp], &
+                    box, dim)
+                fa(:, k) = fs(:, orig(k))
+            end do
+            call fine_virtual_positions(dim, lv, ntot, xa, ida, level_phys(lv - 1)%dx, n_new, &
+                xn, vid, parity, st, msg)
+            if (global_max(env, int(st, i8)) /= 0) call fatal_collective('restart', &
+                'refining a uniform checkpoint: ' // trim(msg))
+            allocate(fn(5, max(n_new, 1)))
+            call interpolate_fields(dim, level_phys(lv - 1)%dx, ntot, xa, fa, n_new, xn, fn, &
+                n_fb, n_empty, n_clip, clip=[.false., .false., .false., .true., .false.])
+            ! level lv - 1 inside lv's region: virtual in the zone, gone deeper
+            allocate(drop(p%n_owned))
+            drop = .false.
+            do j = 1, p%n_owned
+                if (p%level(j) /= lv - 1 .or. p%kind(j) /= KIND_FLUID) cycle
+                if (zones%level_at(p%x(:, j)) == lv - 1) cycle
+                if (zones%in_transition(p%x(:, j), lv - 1)) then
+                    p%kind(j) = KIND_VIRTUAL
+                    p%id(j) = virtual_id(lv - 1, p%id(j), -1_i8)
+                else
+                    drop(j) = .true.
+                end if
+            end do
+            keep = pack([(j, j = 1, p%n_owned)], .not. drop)
+            call particles_gather(p, keep)
+            p%n_owned = size(keep)
+            p%n_total = p%n_owned
+            deallocate(drop)
+            ! the new level's fluid, this rank's positions
+            do j = 1, n_new
+                y = xn(:, j) + cfg%domain%box_lo
+                y(dim + 1:) = 0.0_wp
+                if (any(y(1:dim) < cfg%domain%box_lo(1:dim) .or. &
+                    y(1:dim) >= cfg%domain%box_hi(1:dim))) cycle
+                if (domain_owner(domain, y) /= domain%rank) cycle
+                if (deepest_solid(solids, y, 0.0_wp) /= 0) cycle
+                is_real = zones%level_at(y) == lv
+                if (.not. is_real .and. .not. zones%in_transition(y, lv)) cycle
+                if (fn(4, j) <= 0.0_wp) cycle
+                n = p%n_owned + 1
+                call particles_reserve(p, n)
+                call particles_clear(p, n, n)
+                p%x(:, n) = y
+                p%x_old(:, n) = y
+                p%v(:, n) = fn(1:3, j)
+                p%v_old(:, n) = fn(1:3, j)
+                p%rho(n) = fn(4, j)
+                p%rho_old(n) = fn(4, j)
+                p%e(n) = fn(5, j)
+                p%e_old(n) = fn(5, j)
+                p%m(n) = fn(4, j) * level_phys(lv)%dx**dim
+                p%h(n) = level_phys(lv)%kernel%h
+                p%level(n) = lv
+                p%parity(n) = parity(j)
+                if (is_real) then
+                    p%kind(n) = KIND_FLUID
+                    p%id(n) = next_id + j
+                else
+                    p%kind(n) = KIND_VIRTUAL
+                    p%id(n) = vid(j)
+                end if
+                p%n_owned = n
+                p%n_total = n
+            end do
+            next_id = next_id + n_new
+            ! the new level's walls, from its lattice, within reach of its fluid
+            level_cfg = cfg
+            level_cfg%domain%dx = cfg%domain%dx / 2.0_wp**lv
+            call particles_init(lattice, 1024, dim)
+            call create_lattice_particles(level_cfg, level_phys(lv), solids, domain, lattice)
+            allocate(wanted(lattice%n_owned))
+            do j = 1, lattice%n_owned
+                wanted(j) = lattice%kind(j) /= KIND_FLUID
+                if (wanted(j)) wanted(j) = zones%distance_to_level(lattice%x(:, j), lv) < &
+                    zones%width + level_phys(lv)%kernel%support
+                lattice%level(j) = lv
+                lattice%id(j) = next_id + lattice%id(j)
+            end do
+            keep = pack([(j, j = 1, lattice%n_owned)], wanted)
+            next_id = global_max_id(env, lattice%id, lattice%n_owned)
+            c = p%n_owned
+            call particles_reserve(p, c + size(keep))
+            call pack_widths(lattice, ALL_FIELDS, n_real, n_int)
+            allocate(rbuf(n_real, max(size(keep), 1)), ibuf(n_int, max(size(keep), 1)))
+            call particles_pack(lattice, ALL_FIELDS, keep, size(keep), rbuf, ibuf)
+            call particles_unpack(p, ALL_FIELDS, c + 1, size(keep), rbuf, ibuf)
+            p%n_owned = c + size(keep)
+            p%n_total = p%n_owned
+            call particles_free(lattice)
+            deallocate(xs, fs, ids, order, ida, fa, fn, wanted, rbuf, ibuf)
+        end do
+        p%n_ghost = 0
+        next_id = global_max_id(env, p%id, p%n_owned)
+    end subroutine refine_uniform_state
 
     !> Per level (0:n_levels-1): real and virtual counts, real mass and momentum (collective).
     subroutine level_totals(env, p, n_levels, n_real, n_virtual, mass, momentum)
