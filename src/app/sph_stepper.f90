@@ -46,7 +46,7 @@ module sph_stepper
     use sph_snapshot, only: read_snapshot_header, read_snapshot_rows
     use sph_checkpoint, only: stored_spacing
     use sph_global_ids, only: global_max_id
-    use sph_particles, only: particles_free
+    use sph_particles, only: particles_free, particles_append
     use sph_remesh_driver, only: remesh_report_t, remesh_fluid, remesh_mode_code, &
         remesh_spacing_factor, REMESH_NONE, REMESH_SAME
     use sph_zones, only: zones_t, zones_create
@@ -792,10 +792,8 @@ contains
         integer, allocatable :: order(:)
         type(particles_t) :: walls
         integer(i8) :: base
-        integer :: k, c, n_real, n_int
+        integer :: k, c
         integer, allocatable :: keep(:)
-        real(wp), allocatable :: rbuf(:, :)
-        integer(i8), allocatable :: ibuf(:, :)
 
         ! positions wrapped into the box and owned where they lie (the Verlet list may have
         ! been reused since the last rebuild): the remeshing works on the periodic box
@@ -832,14 +830,8 @@ contains
             call create_lattice_particles(sim%cfg, sim%phys, sim%solids, sim%domain, walls)
             keep = pack([(k, k = 1, walls%n_owned)], walls%kind(1:walls%n_owned) /= KIND_FLUID)
             c = sim%p%n_owned
-            call particles_reserve(sim%p, c + size(keep))
-            call pack_widths(walls, ALL_FIELDS, n_real, n_int)
-            allocate(rbuf(n_real, max(size(keep), 1)), ibuf(n_int, max(size(keep), 1)))
-            call particles_pack(walls, ALL_FIELDS, keep, size(keep), rbuf, ibuf)
-            call particles_unpack(sim%p, ALL_FIELDS, c + 1, size(keep), rbuf, ibuf)
+            call particles_append(sim%p, walls, keep)
             sim%p%id(c + 1:c + size(keep)) = base + sim%p%id(c + 1:c + size(keep))
-            sim%p%n_owned = c + size(keep)
-            sim%p%n_total = sim%p%n_owned
             call particles_free(walls)
         end if
         call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)

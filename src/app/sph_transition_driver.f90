@@ -32,8 +32,8 @@ module sph_transition_driver
     use sph_errors, only: fatal_collective
     use sph_config, only: config_t
     use sph_particles, only: particles_t, particles_init, particles_free, particles_reserve, &
-        particles_gather, particles_clear, particles_pack, particles_unpack, pack_widths, &
-        ALL_FIELDS, KIND_FLUID, KIND_WALL, KIND_VIRTUAL, moves_with_flow
+        particles_gather, particles_clear, particles_append, KIND_FLUID, KIND_WALL, &
+        KIND_VIRTUAL, moves_with_flow
     use sph_physics, only: physics_t
     use sph_solids, only: solids_t, deepest_solid
     use sph_domain, only: domain_t, domain_owner
@@ -90,12 +90,10 @@ contains
         type(particles_t), intent(inout) :: p
         type(config_t) :: level_cfg
         type(particles_t) :: lattice
-        integer :: lv, k, n_real, n_int, c
+        integer :: lv, k
         integer(i8) :: offset, level_max
         integer, allocatable :: keep(:)
         logical, allocatable :: wanted(:)
-        real(wp), allocatable :: rbuf(:, :)
-        integer(i8), allocatable :: ibuf(:, :)
         real(wp) :: reach
 
         p%n_owned = 0
@@ -128,15 +126,7 @@ contains
             keep = pack([(k, k = 1, lattice%n_owned)], wanted)
             deallocate(wanted)
             offset = offset + level_max
-            c = p%n_owned
-            call particles_reserve(p, c + size(keep))
-            call pack_widths(lattice, ALL_FIELDS, n_real, n_int)
-            allocate(rbuf(n_real, max(size(keep), 1)), ibuf(n_int, max(size(keep), 1)))
-            call particles_pack(lattice, ALL_FIELDS, keep, size(keep), rbuf, ibuf)
-            call particles_unpack(p, ALL_FIELDS, c + 1, size(keep), rbuf, ibuf)
-            p%n_owned = c + size(keep)
-            p%n_total = p%n_owned
-            deallocate(keep, rbuf, ibuf)
+            call particles_append(p, lattice, keep)
             call particles_free(lattice)
         end do
         p%n_ghost = 0
@@ -161,6 +151,7 @@ contains
         logical, allocatable :: drop(:)
         integer, allocatable :: converted(:), keep(:)
         integer(i8), allocatable :: keys(:, :), new_ids(:)
+        integer(i8) :: base
         type(new_set_t), allocatable :: sets(:)
         character(len=256) :: errmsg
 
@@ -204,7 +195,8 @@ contains
             keys(1, k) = p%id(converted(k))
             keys(2, k) = transfer(p%x(1, converted(k)), 1_i8)
         end do
-        call assign_global_ids(env, keys, n_conv, next_id, new_ids, next_id)
+        base = next_id
+        call assign_global_ids(env, keys, n_conv, base, new_ids, next_id)
         do k = 1, n_conv
             p%kind(converted(k)) = KIND_FLUID
             p%id(converted(k)) = new_ids(k)
@@ -453,12 +445,10 @@ contains
         type(particles_t), intent(inout) :: p
         integer(i8), intent(inout) :: next_id
         integer :: lv, dim, j, k, a, n_here, n_all, ntot, n_new, st, n_fb, n_empty, n_clip, n
-        integer :: n_real, n_int, c
         integer(i8) :: first
         integer, allocatable :: here(:), order(:), orig(:), parity(:), keep(:)
         real(wp), allocatable :: xs(:, :), fs(:, :), xa(:, :), fa(:, :), xn(:, :), fn(:, :)
-        real(wp), allocatable :: rbuf(:, :)
-        integer(i8), allocatable :: ids(:), ida(:), vid(:), ibuf(:, :)
+        integer(i8), allocatable :: ids(:), ida(:), vid(:)
         real(wp) :: box(3), y(3), reach
         logical, allocatable :: drop(:), wanted(:)
         logical :: is_real
@@ -586,16 +576,9 @@ contains
             end do
             keep = pack([(j, j = 1, lattice%n_owned)], wanted)
             next_id = global_max_id(env, lattice%id, lattice%n_owned)
-            c = p%n_owned
-            call particles_reserve(p, c + size(keep))
-            call pack_widths(lattice, ALL_FIELDS, n_real, n_int)
-            allocate(rbuf(n_real, max(size(keep), 1)), ibuf(n_int, max(size(keep), 1)))
-            call particles_pack(lattice, ALL_FIELDS, keep, size(keep), rbuf, ibuf)
-            call particles_unpack(p, ALL_FIELDS, c + 1, size(keep), rbuf, ibuf)
-            p%n_owned = c + size(keep)
-            p%n_total = p%n_owned
+            call particles_append(p, lattice, keep)
             call particles_free(lattice)
-            deallocate(xs, fs, ids, order, ida, fa, fn, wanted, rbuf, ibuf)
+            deallocate(xs, fs, ids, order, ida, fa, fn, wanted)
         end do
         p%n_ghost = 0
         next_id = global_max_id(env, p%id, p%n_owned)

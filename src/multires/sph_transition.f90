@@ -38,7 +38,10 @@
 !> q(0), q = (1, d, d d^T). A quadratic field (Poiseuille's profile) is reproduced to
 !> round-off on any arrangement with enough sources. Where the moment matrix is not safely
 !> invertible (one-sided or sparse sources) the linear form is used, and where that fails
-!> too, the Shepard (normalised) mean; fallbacks are counted. Densities and masses outside
+!> too, the Shepard (normalised) mean; fallbacks are counted. "Safely" includes the weights'
+!> amplification: sum |phi_k| above MAX_AMPLIFICATION (2; 1.25-1.5 inside a lattice) means
+!> the stencil extrapolates (a target beyond one-sided sources, e.g. the first row next to a
+!> wall), where a quadratic fit gave fine virtual particles 300 times the flow's speed. Densities and masses outside
 !> the range of the sources that carry weight (least squares extrapolating from one-sided
 !> sources) are clipped to that range, so no new extremes appear (counted too).
 !> Virtual particles have negative ids: -(1 + hash of what made them, 62 bits), so they never
@@ -52,6 +55,8 @@ module sph_transition
     use sph_interpolation_kernels, only: INTERP_M4, interp_weight, interp_support
     implicit none
     private
+    !> largest sum of |weights| accepted from a least-squares stencil (see the header)
+    real(wp), parameter :: MAX_AMPLIFICATION = 2.0_wp
     public :: fine_virtual_positions, coarse_virtual_positions, interpolate_fields
     public :: virtual_id, image_source_id
 
@@ -64,7 +69,7 @@ contains
         integer(i8), intent(in) :: k1, k2
         integer(i8) :: z
         z = id_hash(ieor(id_hash(k1), id_hash(k2 + int(level, i8))))
-        virtual_id = -(1_i8 + iand(z, huge(1_i8) / 2_i8))
+        virtual_id = -(1_i8 + iand(z, ishft(1_i8, 62) - 1_i8))
     end function virtual_id
 
     !> Source id for the remeshing rules, which need distinct ids below 2^61: a real id (below
@@ -285,7 +290,7 @@ contains
                 lo_f = huge(1.0_wp)
                 hi_f = -huge(1.0_wp)
                 do k = 1, n_near
-                    if (phi_weights(k) == 0.0_wp) cycle
+                    if (.not. abs(phi_weights(k)) > 0.0_wp) cycle
                     lo_f = min(lo_f, f_src(j, near(k)))
                     hi_f = max(hi_f, f_src(j, near(k)))
                 end do
@@ -313,7 +318,7 @@ contains
         do k = 1, n
             w = interp_weight(INTERP_M4, dim, d(:, k), 1.0_wp)
             phi(k) = w
-            if (w == 0.0_wp) cycle
+            if (.not. w > 0.0_wp) cycle
             q = basis(degree, dim, d(:, k))
             do r = 1, nb
                 m(1:nb, r) = m(1:nb, r) + w * q(1:nb) * q(r)
@@ -324,10 +329,13 @@ contains
         call solve_small(nb, m, rhs, ok)
         if (.not. ok) return
         do k = 1, n
-            if (phi(k) == 0.0_wp) cycle
+            if (.not. phi(k) > 0.0_wp) cycle   ! outside the B-spline's support
             q = basis(degree, dim, d(:, k))
             phi(k) = phi(k) * dot_product(rhs(1:nb), q(1:nb))
         end do
+        ! a stencil that amplifies (one-sided sources: extrapolation) is refused, so the
+        ! caller falls back to a lower degree
+        ok = sum(abs(phi(1:n))) <= MAX_AMPLIFICATION
     end subroutine mls_weights
 
     pure integer function basis_size(degree, dim)

@@ -17,7 +17,7 @@ module sph_particles
     private
     public :: particles_t, particles_init, particles_free, particles_reserve
     public :: particles_copy, particles_gather, particles_clear, particles_visit
-    public :: particles_add_field
+    public :: particles_add_field, particles_append
     public :: particles_pack, particles_unpack, pack_widths, field_list
     public :: field_info_t, field_op_t
     public :: KIND_FLUID, KIND_WALL, KIND_VIRTUAL, KIND_MIRROR, moves_with_flow
@@ -361,6 +361,26 @@ contains
         op%dst = [(k, k = 1, size(src))]
         call particles_visit(p, op)
     end subroutine particles_gather
+
+    !> Append the particles keep(:) of `from` to the owned particles of p, every field (p has
+    !> no ghosts then: n_total = n_owned).
+    subroutine particles_append(p, from, keep)
+        type(particles_t), intent(inout) :: p, from
+        integer, intent(in) :: keep(:)
+        integer :: first, n_real, n_int
+        real(wp), allocatable :: rbuf(:, :)
+        integer(i8), allocatable :: ibuf(:, :)
+        first = p%n_owned + 1
+        p%n_total = p%n_owned
+        call particles_reserve(p, p%n_owned + size(keep))
+        call pack_widths(from, ALL_FIELDS, n_real, n_int)
+        allocate(rbuf(n_real, max(size(keep), 1)), ibuf(n_int, max(size(keep), 1)))
+        call particles_pack(from, ALL_FIELDS, keep, size(keep), rbuf, ibuf)
+        call particles_unpack(p, ALL_FIELDS, first, size(keep), rbuf, ibuf)
+        p%n_owned = p%n_owned + size(keep)
+        p%n_ghost = 0
+        p%n_total = p%n_owned
+    end subroutine particles_append
 
     !> Set every field of slots first..last to zero.
     subroutine particles_clear(p, first, last)
