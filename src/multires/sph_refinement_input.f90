@@ -9,7 +9,8 @@
 !> nesting of levels with a transition zone of margin, and the features that do not work with
 !> refinement regions yet (mirror walls, in-run remeshing, initial particles from a file).
 module sph_refinement_input
-    use sph_kinds, only: wp
+    use sph_kinds, only: wp, i8
+    use sph_logger, only: int_text
     use sph_namelist, only: nml_group_t, real_text
     use sph_domain_input, only: domain_input_t
     use sph_physics_input, only: numerics_input_t
@@ -93,9 +94,9 @@ contains
         case ('box')
             do a = 1, dim
                 if (.not. (reg%lo(a) < reg%hi(a))) then
-                    call grp%error('lo(' // itoa(a) // ')', real_text(reg%lo(a)) // &
-                        ' must be < hi(' // itoa(a) // ') = ' // real_text(reg%hi(a)) // &
-                        ' (the corners of a box region)')
+                    call grp%error('lo(' // int_text(int(a, i8)) // ')', &
+                        real_text(reg%lo(a)) // ' must be < hi(' // int_text(int(a, i8)) // &
+                        ') = ' // real_text(reg%hi(a)) // ' (the corners of a box region)')
                     cycle
                 end if
                 if (dom%dx > 0.0_wp) then
@@ -137,7 +138,7 @@ contains
             if (abs(v - (dom%box_lo(ax) + anint(k) * dom%dx)) <= lattice_tol * dom%dx) return
             below = dom%box_lo(ax) + floor(k) * dom%dx
             above = dom%box_lo(ax) + (floor(k) + 1.0_wp) * dom%dx
-            call grp%error(side // '(' // itoa(ax) // ')', real_text(v) // &
+            call grp%error(side // '(' // int_text(int(ax, i8)) // ')', real_text(v) // &
                 ' is not on the coarse lattice (box_lo + k dx, dx = ' // real_text(dom%dx) // &
                 '); the nearest allowed values are ' // nice(below) // ' and ' // &
                 nice(above) // ' m')
@@ -247,16 +248,17 @@ contains
                 end select
             end do
             if (other_shape) then
-                call region_grps(rr)%error('level', 'a level ' // itoa(level) // &
-                    " region must lie inside a level " // itoa(level - 1) // " region of " // &
-                    "the same kind (a box in a box, or a band around the same body in a " // &
-                    "wider one); other nestings are not supported yet")
+                call region_grps(rr)%error('level', 'a level ' // int_text(int(level, i8)) // &
+                    " region must lie inside a level " // int_text(int(level - 1, i8)) // &
+                    " region of the same kind (a box in a box, or a band around the same " // &
+                    "body in a wider one); other nestings are not supported yet")
             else
-                call region_grps(rr)%error('level', 'a level ' // itoa(level) // &
-                    ' region must lie inside a level ' // itoa(level - 1) // ' region with ' // &
-                    'a margin of at least the transition width (' // nice(ref%width) // &
-                    ' m) wherever its boundary is inside the domain; no level ' // &
-                    itoa(level - 1) // ' region holds it so')
+                call region_grps(rr)%error('level', 'a level ' // int_text(int(level, i8)) // &
+                    ' region must lie inside a level ' // int_text(int(level - 1, i8)) // &
+                    ' region with a margin of at least the transition width (' // &
+                    nice(ref%width) // ' m) wherever its boundary is inside the domain; ' // &
+                    'no level ' // &
+                    int_text(int(level - 1, i8)) // ' region holds it so')
             end if
         end subroutine check_nesting
 
@@ -308,12 +310,4 @@ contains
         read(buf, *) rounded
         text = real_text(rounded)
     end function nice
-
-    pure function itoa(i) result(text)
-        integer, intent(in) :: i
-        character(len=:), allocatable :: text
-        character(len=16) :: buf
-        write(buf, '(i0)') i
-        text = trim(buf)
-    end function itoa
 end module sph_refinement_input

@@ -41,9 +41,10 @@
 !> too, the Shepard (normalised) mean; fallbacks are counted. "Safely" includes the weights'
 !> amplification: sum |phi_k| above MAX_AMPLIFICATION (2; 1.25-1.5 inside a lattice) means
 !> the stencil extrapolates (a target beyond one-sided sources, e.g. the first row next to a
-!> wall), where a quadratic fit gave fine virtual particles 300 times the flow's speed. Densities and masses outside
-!> the range of the sources that carry weight (least squares extrapolating from one-sided
-!> sources) are clipped to that range, so no new extremes appear (counted too).
+!> wall), where a quadratic fit gave fine virtual particles 300 times the flow's speed.
+!> Densities and masses outside the range of the sources that carry weight (least squares
+!> extrapolating from one-sided sources) are clipped to that range, so no new extremes appear
+!> (counted too).
 !> Virtual particles have negative ids: -(1 + hash of what made them, 62 bits), so they never
 !> collide with a real particle's id; a virtual that turns real gets a fresh global id.
 !> Serial, no MPI.
