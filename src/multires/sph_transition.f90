@@ -52,6 +52,7 @@ module sph_transition
     use sph_kinds, only: wp, i8
     use sph_refine, only: refine_positions
     use sph_coarsen, only: coarsen_select, id_hash
+    use sph_global_ids, only: id_order   ! the stable id sort (no communication)
     use sph_cell_list, only: neighbour_list_t, build_neighbour_list
     use sph_interpolation_kernels, only: INTERP_M4, interp_weight, interp_support
     implicit none
@@ -119,7 +120,8 @@ contains
         allocate(vid(max(n_new, 0)), parity(max(n_new, 0)))
         if (n_new == 0) return
         ! the corner a child's key starts from (its lowest id), found by bisection
-        order = sorted_order(ids(1:n))
+        allocate(order(n))
+        call id_order(ids, n, order)
         sorted_ids = ids(order)
         do k = 1, n_new
             parity(k) = 0
@@ -134,39 +136,6 @@ contains
             vid(k) = virtual_id(level, key(1, k), key(2, k))
         end do
     end subroutine fine_virtual_positions
-
-    !> Indices that sort v ascending (merge sort).
-    function sorted_order(v) result(order)
-        integer(i8), intent(in) :: v(:)
-        integer, allocatable :: order(:), tmp(:)
-        integer :: width, lo, mid, hi, a, b, c, n
-        n = size(v)
-        order = [(a, a = 1, n)]
-        allocate(tmp(n))
-        width = 1
-        do while (width < n)
-            lo = 1
-            do while (lo <= n)
-                mid = min(lo + width - 1, n)
-                hi = min(lo + 2 * width - 1, n)
-                a = lo; b = mid + 1; c = lo
-                do while (a <= mid .and. b <= hi)
-                    if (v(order(b)) < v(order(a))) then
-                        tmp(c) = order(b); b = b + 1
-                    else
-                        tmp(c) = order(a); a = a + 1
-                    end if
-                    c = c + 1
-                end do
-                tmp(c:c + mid - a) = order(a:mid)
-                c = c + mid - a + 1
-                tmp(c:c + hi - b) = order(b:hi)
-                order(lo:hi) = tmp(lo:hi)
-                lo = lo + 2 * width
-            end do
-            width = 2 * width
-        end do
-    end function sorted_order
 
     !> Position of value in the ascending list s (it is there).
     pure integer function bisect(s, value) result(k)
