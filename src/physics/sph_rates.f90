@@ -222,6 +222,11 @@ contains
     !> added: (:, 1, s) pressure (and repulsion), (:, 2, s) viscous; it is minus the pair
     !> terms its wall (or mirror) particles give the owned fluid particles, so the fluid's
     !> total m dv/dt plus the forces on all solids equals the body force on the fluid.
+    !> Each pair of owned fluid particles is evaluated once, from its lower index, and its
+    !> terms go to both (they are antisymmetric, so d v_j gets minus what d v_i gets, with
+    !> the masses swapped): half the pair work of visiting every pair from both sides. Pairs
+    !> with ghosts, walls and mirrors are evaluated from the owned fluid side only, as the
+    !> other side is owned by another rank or follows its own rule.
     subroutine compute_rates(phys, p, nl, solids, wall_forces, level)
         type(physics_t), intent(in) :: phys
         type(particles_t), intent(inout) :: p
@@ -230,31 +235,44 @@ contains
         real(wp), intent(inout), optional :: wall_forces(:, :, :)
         integer, intent(in), optional :: level
         integer :: i, k, j, a, s, m, n_near
-        real(wp) :: d(3), r2, r, grad(3), vij(3), vvisc(3), pterm, coeff, beta
-        real(wp) :: drho, dv(3), de, rho_i, p_i, mu_i, q, sterm(3), eps_i(3, 3), eps_j(3, 3)
-        real(wp) :: support2
+        real(wp) :: d(3), r2, grad(3), vij(3), vvisc(3), pterm, coeff, beta, xi(3)
+        real(wp) :: drho, dv(3), de, rho_i, mu_i, q, sterm(3), eps_i(3, 3), eps_j(3, 3)
+        real(wp) :: support2, m_i, m_j, vg, f(3), e_pair, visc_scale
         integer, allocatable :: near(:)   !< the neighbours of i within the support
-        real(wp), allocatable :: r_near(:), r2_near(:), dwdr_near(:), grad_near(:), visc_near(:)
-        real(wp), allocatable :: p_rho2(:), inv_rho(:)   !< p/rho^2 and 1/rho of all particles
-        logical :: repulsive_walls, morris_walls
+        real(wp), allocatable :: d_near(:, :), r_near(:), r2_near(:), dwdr_near(:)
+        real(wp), allocatable :: grad_near(:), visc_near(:)
+        real(wp), allocatable :: state(:, :)  !< v, m, p/rho^2, 1/rho of all particles
+        logical, allocatable :: paired(:)     !< owned fluid of this level: pair terms shared
+        logical :: repulsive_walls, morris_walls, strain_viscosity
 
         support2 = phys%kernel%support**2
         repulsive_walls = phys%walls == WALLS_REPULSIVE .or. phys%walls == WALLS_REPULSIVE_MIRROR
         morris_walls = phys%walls == WALLS_MORRIS
+        strain_viscosity = phys%viscosity == VISCOSITY_STRAIN_RATE
+        visc_scale = phys%nu * phys%viscous_scale
         k = 0
         if (p%n_owned > 0) k = maxval(nl%start(2:p%n_owned + 1) - nl%start(1:p%n_owned))
-        allocate(near(k), r_near(k), r2_near(k), dwdr_near(k), grad_near(k), visc_near(k))
-        allocate(p_rho2(p%n_total), inv_rho(p%n_total))
+        allocate(near(k), d_near(3, k), r_near(k), r2_near(k), dwdr_near(k), grad_near(k), &
+            visc_near(k))
+        ! what a pair reads of j, packed: one or two cache lines per neighbour
+        allocate(state(6, p%n_total), paired(p%n_total))
         do j = 1, p%n_total
-            p_rho2(j) = p%p(j) / p%rho(j)**2
-            inv_rho(j) = 1.0_wp / p%rho(j)
+            state(1:3, j) = p%v(:, j)
+            state(4, j) = p%m(j)
+            state(5, j) = p%p(j) / p%rho(j)**2
+            state(6, j) = 1.0_wp / p%rho(j)
+        end do
+        paired(:) = .false.
+        do i = 1, p%n_owned
+            if (other_level(p, i, level)) cycle
+            paired(i) = moves_with_flow(p%kind(i))
+            p%drhodt(i) = 0.0_wp
+            p%dvdt(:, i) = 0.0_wp
+            p%dedt(i) = 0.0_wp
         end do
 
         do i = 1, p%n_owned
             if (other_level(p, i, level)) cycle
-            p%drhodt(i) = 0.0_wp
-            p%dvdt(:, i) = 0.0_wp
-            p%dedt(i) = 0.0_wp
             select case (p%kind(i))
             case (KIND_WALL)
                 if (phys%walls == WALLS_MORRIS .and. &
@@ -265,87 +283,101 @@ contains
                 cycle
             end select
             rho_i = p%rho(i)
-            p_i = p%p(i) / rho_i**2
+            m_i = state(4, i)
             mu_i = rho_i * phys%nu
-            if (phys%viscosity == VISCOSITY_STRAIN_RATE) eps_i = tensor(p%strain(:, i))
+            if (strain_viscosity) eps_i = tensor(p%strain(:, i))
             drho = 0.0_wp
             dv = 0.0_wp
             de = 0.0_wp
-            ! the pairs within the support, then dW/dr of all of them in one kernel call
+            xi = p%x(:, i)
+            ! the pairs within the support not yet evaluated from the other side, then dW/dr
+            ! of all of them in one kernel call
             n_near = 0
             do k = nl%start(i), nl%start(i + 1) - 1
                 j = nl%index(k)
-                d = p%x(:, i) - p%x(:, j)
+                if (j < i) then
+                    if (paired(j)) cycle
+                end if
+                d = xi - p%x(:, j)
                 r2 = d(1)**2 + d(2)**2 + d(3)**2
                 if (r2 <= 0.0_wp .or. r2 >= support2) cycle
                 n_near = n_near + 1
                 near(n_near) = j
+                d_near(:, n_near) = d
                 r2_near(n_near) = r2
                 r_near(n_near) = sqrt(r2)
             end do
             call phys%kernel%dwdr_many(r_near(1:n_near), dwdr_near(1:n_near))
-            ! grad W = d * grad_near; Morris' viscous factor r dW/dr / (r^2 + eta^2)
+            ! grad W = d * grad_near; Morris' viscous factor r dW/dr / (r^2 + eta^2): one
+            ! vectorisable loop, so the divisions are not paid pair by pair
             do m = 1, n_near
                 grad_near(m) = dwdr_near(m) / r_near(m)
                 visc_near(m) = r_near(m) * dwdr_near(m) / (r2_near(m) + phys%eta2)
             end do
             do m = 1, n_near
                 j = near(m)
-                d = p%x(:, i) - p%x(:, j)
+                d = d_near(:, m)
                 r2 = r2_near(m)
-                r = r_near(m)
                 if (repulsive_walls .and. p%kind(j) == KIND_WALL) then
-                    if (r < phys%repulsive_r0) then
-                        q = phys%repulsive_r0 / r
-                        dv = dv + phys%repulsive_d * (q**phys%repulsive_n1 - q**phys%repulsive_n2) &
+                    if (r_near(m) < phys%repulsive_r0) then
+                        q = phys%repulsive_r0 / r_near(m)
+                        f = phys%repulsive_d * (q**phys%repulsive_n1 - q**phys%repulsive_n2) &
                             * d / r2
+                        dv = dv + f
                         s = force_slot(j)
-                        if (s > 0) wall_forces(:, 1, s) = wall_forces(:, 1, s) - p%m(i) * &
-                            phys%repulsive_d * (q**phys%repulsive_n1 - q**phys%repulsive_n2) &
-                            * d / r2
+                        if (s > 0) wall_forces(:, 1, s) = wall_forces(:, 1, s) - m_i * f
                     end if
                     cycle
                 end if
+                m_j = state(4, j)
                 grad = d * grad_near(m)
-                vij = p%v(:, i) - p%v(:, j)
-                drho = drho + p%m(j) * dot_product(vij, grad)
-                pterm = p_i + p_rho2(j)
-                dv = dv - p%m(j) * pterm * grad
-                de = de + 0.5_wp * p%m(j) * pterm * dot_product(vij, grad)
-                s = force_slot(j)
-                if (s > 0) wall_forces(:, 1, s) = wall_forces(:, 1, s) + p%m(i) * p%m(j) * &
-                    pterm * grad
-                select case (phys%viscosity)
-                case (VISCOSITY_MORRIS)
+                vij = p%v(:, i) - state(1:3, j)
+                vg = dot_product(vij, grad)
+                pterm = state(5, i) + state(5, j)
+                ! per unit mass of the partner: f is the force on i, e_pair its heating
+                f = -pterm * grad
+                e_pair = 0.5_wp * pterm * vg
+                if (strain_viscosity) then
+                    eps_j = tensor(p%strain(:, j))
+                    do a = 1, 3
+                        sterm(a) = dot_product(mu_i * eps_i(a, :) / rho_i**2 + &
+                            phys%nu * eps_j(a, :) * state(6, j), grad)
+                    end do
+                    f = f + sterm
+                else
+                    ! Morris: (mu_i + mu_j) / (rho_i rho_j) = nu (1/rho_i + 1/rho_j)
+                    coeff = visc_scale * (state(6, i) + state(6, j)) * visc_near(m)
                     vvisc = vij
                     if (morris_walls .and. p%kind(j) == KIND_WALL) then
                         beta = wall_beta(phys, p, i, j, solids)
                         vvisc = beta * vij
                     end if
-                    ! (mu_i + mu_j) / (rho_i rho_j) = nu (1/rho_i + 1/rho_j) with mu = rho nu
-                    coeff = p%m(j) * phys%nu * phys%viscous_scale * (inv_rho(i) + inv_rho(j)) &
-                        * visc_near(m)
-                    dv = dv + coeff * vvisc
-                    de = de - 0.5_wp * coeff * dot_product(vvisc, vvisc)
-                    if (s > 0) wall_forces(:, 2, s) = wall_forces(:, 2, s) - p%m(i) * coeff * &
-                        vvisc
-                case (VISCOSITY_STRAIN_RATE)
-                    eps_j = tensor(p%strain(:, j))
-                    do a = 1, 3
-                        sterm(a) = dot_product(mu_i * eps_i(a, :) / rho_i**2 + &
-                            p%rho(j) * phys%nu * eps_j(a, :) / p%rho(j)**2, grad)
-                    end do
-                    dv = dv + p%m(j) * sterm
-                    if (s > 0) wall_forces(:, 2, s) = wall_forces(:, 2, s) - p%m(i) * p%m(j) * &
-                        sterm
-                end select
+                    f = f + coeff * vvisc
+                    e_pair = e_pair - 0.5_wp * coeff * dot_product(vvisc, vvisc)
+                end if
+                drho = drho + m_j * vg
+                dv = dv + m_j * f
+                de = de + m_j * e_pair
+                if (paired(j)) then
+                    p%drhodt(j) = p%drhodt(j) + m_i * vg
+                    p%dvdt(:, j) = p%dvdt(:, j) - m_i * f
+                    p%dedt(j) = p%dedt(j) + m_i * e_pair
+                else
+                    s = force_slot(j)
+                    if (s > 0) then
+                        wall_forces(:, 1, s) = wall_forces(:, 1, s) + m_i * m_j * pterm * grad
+                        wall_forces(:, 2, s) = wall_forces(:, 2, s) - m_i * m_j * &
+                            (f + pterm * grad)
+                    end if
+                end if
             end do
-            if (phys%viscosity == VISCOSITY_STRAIN_RATE) then
-                de = de + mu_i / (2.0_wp * rho_i) * sum(eps_i * eps_i)
-            end if
-            p%drhodt(i) = drho
-            p%dvdt(:, i) = dv + phys%body_force
-            p%dedt(i) = de
+            if (strain_viscosity) de = de + mu_i / (2.0_wp * rho_i) * sum(eps_i * eps_i)
+            p%drhodt(i) = p%drhodt(i) + drho
+            p%dvdt(:, i) = p%dvdt(:, i) + dv
+            p%dedt(i) = p%dedt(i) + de
+        end do
+        do i = 1, p%n_owned
+            if (paired(i)) p%dvdt(:, i) = p%dvdt(:, i) + phys%body_force
         end do
 
     contains
