@@ -7,7 +7,8 @@
 module sph_schedule
     use sph_kinds, only: wp, i8
     use sph_config, only: config_t
-    use sph_mpi_env, only: mpi_env_t, global_max
+    use sph_mpi_env, only: mpi_env_t, global_max, global_sum
+    use sph_memory, only: peak_resident_bytes
     use sph_logger, only: log_info
     use sph_rates, only: local_max_speed
     use sph_reference, only: steady_after
@@ -253,6 +254,7 @@ contains
         write(line, '(a,i0,a,es12.5,a,f10.2,a)') 'finished: ', sim%step - sched%first_step, &
             ' steps to t = ', sim%time, ' s in ', wall_now - sched%wall_start, ' s wall'
         call log_info(trim(line))
+        call log_peak_memory(sim, env)
         if (len(sched%stopped_by) > 0) call log_info('stopped early by ' // &
             sched%stopped_by // ' at the checkpoint above; continue with --restart ' // &
             trim(sim%cfg%output%output_dir) // ' (exit status 75)')
@@ -270,6 +272,24 @@ contains
             call log_info(trim(line))
         end if
     end subroutine schedule_final_report
+
+    !> Peak resident memory of all ranks together and of the largest, and per particle
+    !> (owned particles of the last state) (collective).
+    subroutine log_peak_memory(sim, env)
+        type(simulation_t), intent(in) :: sim
+        type(mpi_env_t), intent(in) :: env
+        integer(i8) :: mine, particles
+        real(wp) :: total
+        character(len=256) :: line
+        mine = peak_resident_bytes()
+        if (global_max(env, merge(1_i8, 0_i8, mine < 0)) > 0) return
+        total = global_sum(env, real(mine, wp))
+        particles = global_sum(env, int(sim%p%n_owned, i8))
+        write(line, '(a,f10.1,a,f10.1,a,f8.1,a)') 'peak memory: ', total / 1.0e6_wp, &
+            ' MB over all ranks (largest rank ', real(global_max(env, mine), wp) / 1.0e6_wp, &
+            ' MB), ', total / real(max(particles, 1_i8), wp), ' bytes per particle'
+        call log_info(trim(line))
+    end subroutine log_peak_memory
 
     !> Wall-clock seconds.
     subroutine wall_clock(seconds)

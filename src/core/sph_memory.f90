@@ -1,0 +1,32 @@
+!> The process's own memory accounting: its peak resident set, as the kernel counts it
+!> (Linux /proc/self/status, VmHWM). Elsewhere the figure is unknown and reported as such.
+module sph_memory
+    use sph_kinds, only: i8
+    implicit none
+    private
+    public :: peak_resident_bytes
+
+contains
+
+    !> Peak resident set size of this process in bytes; -1 when the system does not say.
+    function peak_resident_bytes() result(bytes)
+        integer(i8) :: bytes
+        integer :: unit, stat, k
+        integer(i8) :: kilobytes
+        character(len=256) :: line
+        bytes = -1_i8
+        open(newunit=unit, file='/proc/self/status', action='read', status='old', iostat=stat)
+        if (stat /= 0) return
+        do
+            read(unit, '(a)', iostat=stat) line
+            if (stat /= 0) exit
+            if (line(1:6) /= 'VmHWM:') cycle
+            k = index(line, 'kB')
+            if (k == 0) exit
+            read(line(7:k - 1), *, iostat=stat) kilobytes
+            if (stat == 0) bytes = 1024_i8 * kilobytes
+            exit
+        end do
+        close(unit)
+    end function peak_resident_bytes
+end module sph_memory
