@@ -102,7 +102,8 @@ module sph_refine
     !> mirrored; new positions within WALL_BAND new spacings of it are moved
     real(wp), parameter :: MIRROR_DEPTH = 2.0_wp
     real(wp), parameter :: WALL_BAND = 20.0_wp
-    !> smallest distance (in new spacings) a moved point keeps from the points before it
+    !> smallest distance (in new spacings) a constructed or moved point keeps from the points
+    !> kept before it (thinning, see the header)
     real(wp), parameter :: MIN_GAP = 0.5_wp
 
 contains
