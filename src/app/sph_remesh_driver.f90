@@ -36,9 +36,10 @@
 !> the particles in the box with the old total momentum (global sums).
 !>
 !> Next to solids (optional argument solids): refine_positions applies its wall rule, and the
-!> transfer is handed, besides the periodic images, the mirror images (across each solid
-!> surface) of the old and new particles within MIRROR_REACH = 3 h of it, the old ones with
-!> their mass, velocity, density and energy. A new particle next to a wall then sees old
+!> transfer is handed the mirror images (across each solid surface) of the old and new
+!> particles within MIRROR_REACH = 3 h of it, the old ones with their mass, velocity, density
+!> and energy; the periodic images are taken of the particles and their mirrors together
+!> (mirrors first: with_mirrors_and_images). A new particle next to a wall then sees old
 !> particles on both sides, as in the interior, and takes a mass that matches its volume
 !> (without mirrors the first row got 20 % too little: only the old row behind it reaches
 !> it). Only the particles in the box are kept; as for a plane wall the exchange with the
@@ -299,14 +300,10 @@ contains
             character(len=200) :: text
             text = ''
             h = max(dx, dx * remesh_spacing_factor(mode))
-            call with_images(dim, box_lo, box_hi, periodic, n, x, h * REACH, xo_a, orig_o, &
-                no_a)
-            call with_images(dim, box_lo, box_hi, periodic, n_new, xn, h * REACH, xn_a, &
-                orig_n, nn_a)
-            if (present(solids)) then
-                call with_mirrors(dim, solids, box_lo, h * MIRROR_REACH, xo_a, orig_o, no_a)
-                call with_mirrors(dim, solids, box_lo, h * MIRROR_REACH, xn_a, orig_n, nn_a)
-            end if
+            call with_mirrors_and_images(dim, box_lo, box_hi, periodic, solids, &
+                h * MIRROR_REACH, h * REACH, n, x, xo_a, orig_o, no_a)
+            call with_mirrors_and_images(dim, box_lo, box_hi, periodic, solids, &
+                h * MIRROR_REACH, h * REACH, n_new, xn, xn_a, orig_n, nn_a)
             mo_a = m(orig_o); rho_a = rho(orig_o); eo_a = e(orig_o); vo_a = v(:, orig_o)
             allocate(m_a(nn_a), v_a(3, nn_a), r_a(nn_a), e_a(nn_a))
             call remesh_transfer(dim, h, no_a, xo_a, mo_a, vo_a, rho_a, eo_a, nn_a, xn_a, &
@@ -459,6 +456,37 @@ contains
         call move_alloc(yt, y)
         call move_alloc(ot, orig)
     end subroutine with_images
+
+    !> y(:, 1:ny): the points xs(:, 1:ns) (relative to box_lo, in the box), then their mirror
+    !> images across every solid within mirror_dist of its surface (with_mirrors), then the
+    !> periodic images of both within image_dist of the box (with_images); orig(k): the point
+    !> of xs that point k copies. Mirrors first: a mirror's images are the mirrors of the
+    !> images (a solid repeats with the box), and every point, mirror or not, is kept by the
+    !> same rule (within image_dist of the box), so the old and the new sets are cut at the same
+    !> place. Mirroring the images instead mirrors points near the edge of the reach across a
+    !> periodic image of a body, deep into it, where the old and new images were cut
+    !> differently: mirrors with no partner at all (issue 10, Morris' cylinder: "new particles
+    !> receive no mass" refining L/25, "old particles have no new particle" coarsening L/50).
+    subroutine with_mirrors_and_images(dim, box_lo, box_hi, periodic, solids, mirror_dist, &
+            image_dist, ns, xs, y, orig, ny)
+        integer, intent(in) :: dim, ns
+        real(wp), intent(in) :: box_lo(3), box_hi(3), mirror_dist, image_dist, xs(:, :)
+        logical, intent(in) :: periodic(3)
+        type(solids_t), intent(in), optional :: solids
+        real(wp), allocatable, intent(out) :: y(:, :)
+        integer, allocatable, intent(out) :: orig(:)
+        integer, intent(out) :: ny
+        real(wp), allocatable :: ym(:, :)
+        integer, allocatable :: om(:), oi(:)
+        integer :: nm, i
+        nm = ns
+        allocate(ym(3, max(ns, 1)), om(max(ns, 1)))
+        ym(:, 1:ns) = xs(:, 1:ns)
+        om(1:ns) = [(i, i = 1, ns)]
+        if (present(solids)) call with_mirrors(dim, solids, box_lo, mirror_dist, ym, om, nm)
+        call with_images(dim, box_lo, box_hi, periodic, nm, ym, image_dist, y, oi, ny)
+        orig = om(oi(1:ny))
+    end subroutine with_mirrors_and_images
 
     !> Append to y(:, 1:ny) the mirror images, across every solid, of its points (relative to
     !> box_lo) that lie in the fluid within `dist` of that solid's surface; orig follows.

@@ -31,6 +31,17 @@
 !> candidate with a wrong corner count) produce no centre and are counted (n_irregular):
 !> on strongly disordered sets the count falls short of 2^dim N by that much.
 !>
+!> Thinning (with or without solids). A constructed point (midpoint or centre) or a point
+!> moved by the wall rule is dropped when a point kept before it lies within MIN_GAP = 0.5
+!> new spacings. Old positions that were not moved come first and are all kept; the others
+!> follow the order of their keys (a sequential greedy pass in key order, computed in rounds:
+!> independent of storage order and ranks). On a lattice jittered by +-5 % nothing is dropped
+!> (all pairs >= 0.9 dx_new). On clumped sets it matters: an old particle lying between two
+!> neighbours closer than EDGE_FACTOR dx (three in a row 0.55 dx apart) sits on their
+!> midpoint, and near-coincident pairs give midpoints and centres on top of each other
+!> (Morris' cylinder at L/50, 1500 s: 50 new pairs below 0.4 dx_new, the closest 0.022,
+!> in the clumps next to the periodic face x = 0; now none below 0.5 dx_new).
+!>
 !> Walls and bodies (optional solids, signed distance d > 0 in the fluid and normal n from
 !> sph_solids; positions + origin are absolute). The rule above keeps every old particle, so
 !> next to a surface the first new row would be where the old first row was: dx/2 = one NEW
@@ -52,15 +63,13 @@
 !>     is continuous and monotone across a channel. The map is smooth, so the disorder of the
 !>     old set (and of the midpoint construction inside) is kept; only distances along the
 !>     normal shrink slightly in the band.
-!>  3. Thinning. Next to a curved or staircase surface (Morris' lattice bodies leave particles
-!>     0.1 dx from it) a particle and its mirror are close, and their cells give clumps and,
-!>     where d < 0 collapses onto dx/4, duplicates. A moved point is dropped when a point
-!>     that precedes it lies within MIN_GAP = 0.5 new spacings (unmoved points precede moved
-!>     ones, moved ones follow the order of their keys: independent of storage order and
-!>     ranks). Nothing is dropped next to a plane wall (all pairs >= 0.97 dx_new there).
-!>     Morris' cylinder (L/50 at 50 s): 2184 -> 8684 (3.98 N), minimum pair 0.59 dx_new,
-!>     CoV of nearest distances 0.016; the particles left where clumps were thinned carry up
-!>     to twice the median mass (their neighbours' volume).
+!>  3. Thinning (below). Next to a curved or staircase surface (Morris' lattice bodies leave
+!>     particles 0.1 dx from it) a particle and its mirror are close, and their cells give
+!>     clumps and, where d < 0 collapses onto dx/4, duplicates; the moved points (old ones
+!>     included) are thinned like the constructed ones. Nothing is dropped next to a plane
+!>     wall (all pairs >= 0.97 dx_new there). Morris' cylinder lattice (t = 0): L/50 2168 ->
+!>     8611 (3.97 N), minimum pair 0.975 dx_new; L/25 528 -> 2067 (3.91 N), 0.725 dx_new; the
+!>     particles left where clumps were thinned carry up to twice the median mass.
 !> Result: first row at dx/4 = dx_new/2 from each surface (exactly for a plane; for
 !> a curved surface the mirrored cells are centred on it to O(dx^2 / R)), no gap, nothing
 !> inside; the count is 2^dim N + about one new row per surface minus the half row the set
@@ -93,7 +102,8 @@ module sph_refine
     !> mirrored; new positions within WALL_BAND new spacings of it are moved
     real(wp), parameter :: MIRROR_DEPTH = 2.0_wp
     real(wp), parameter :: WALL_BAND = 20.0_wp
-    !> smallest distance (in new spacings) a moved point keeps from the points before it
+    !> smallest distance (in new spacings) a constructed or moved point keeps from the points
+    !> kept before it (thinning, see the header)
     real(wp), parameter :: MIN_GAP = 0.5_wp
 
 contains
@@ -218,46 +228,71 @@ contains
                     - box(1:dim) * floor(x_new(1:dim, k) / box(1:dim))
             end do
         end if
-        if (ns > 0) call thin_band()
+        if (.not. allocated(moved)) then
+            allocate(moved(n_new))
+            moved = .false.
+        end if
+        call thin()
 
     contains
 
-        !> Clumps next to curved or staircase surfaces (mirrors close to their originals): a
-        !> moved point is dropped when a point that precedes it lies within MIN_GAP dx/2
-        !> (unmoved points precede moved ones, moved ones follow their keys' order).
-        subroutine thin_band()
+        !> Thinning (header, rule 3): a constructed (midpoint, centre) or moved point is dropped
+        !> when a point kept before it lies within MIN_GAP dx/2. Old positions that were not
+        !> moved come first and are all kept; the others follow the order of their keys, and
+        !> each is kept or dropped after every earlier one within reach is decided (rounds of
+        !> the sequential greedy rule: the result is that of one pass in key order, whatever
+        !> the storage order).
+        subroutine thin()
             real(wp), allocatable :: xi(:, :)
-            integer, allocatable :: orig(:)
+            integer, allocatable :: orig(:), state(:)
             type(neighbour_list_t) :: nl
-            logical :: periodic
+            logical :: periodic, decided, lose
+            logical, allocatable :: cand(:)
             real(wp) :: bx(3), rmin
             integer :: ntot, i, j, t
-            logical, allocatable :: drop(:)
-            if (.not. any(moved)) return
+            integer, parameter :: undecided = 0, kept = 1, dropped = 2
+            if (n_new == 0) return
+            allocate(cand(n_new), state(n_new))
+            do i = 1, n_new
+                cand(i) = moved(i) .or. iand(key(1, i), 3_i8) /= 0_i8
+            end do
+            if (.not. any(cand)) return
             rmin = MIN_GAP * 0.5_wp * dx
             periodic = present(box)
             bx = 0.0_wp
             if (periodic) bx = box
             call with_periodic_images(dim, n_new, x_new, periodic, bx, rmin, xi, orig, ntot)
             call build_neighbour_list(xi, ntot, n_new, dim, rmin, nl)
-            allocate(drop(n_new))
-            drop = .false.
-            do i = 1, n_new
-                if (.not. moved(i)) cycle
-                do t = nl%start(i), nl%start(i + 1) - 1
-                    j = orig(nl%index(t))
-                    if (j == i) cycle
-                    if (.not. moved(j) .or. key_before(key(:, j), key(:, i))) then
-                        drop(i) = .true.
-                        exit
+            state = merge(undecided, kept, cand)
+            do while (any(state == undecided))
+                do i = 1, n_new
+                    if (state(i) /= undecided) cycle
+                    decided = .true.
+                    lose = .false.
+                    do t = nl%start(i), nl%start(i + 1) - 1
+                        j = orig(nl%index(t))
+                        if (j == i) cycle
+                        if (cand(j)) then
+                            if (.not. key_before(key(:, j), key(:, i))) cycle
+                        end if
+                        if (state(j) == kept) then
+                            lose = .true.
+                            exit
+                        end if
+                        if (state(j) == undecided) decided = .false.
+                    end do
+                    if (lose) then
+                        state(i) = dropped
+                    else if (decided) then
+                        state(i) = kept
                     end if
                 end do
             end do
-            if (.not. any(drop)) return
-            x_new = x_new(:, pack([(i, i = 1, n_new)], .not. drop))
-            key = key(:, pack([(i, i = 1, n_new)], .not. drop))
-            n_new = count(.not. drop)
-        end subroutine thin_band
+            if (all(state == kept)) return
+            x_new = x_new(:, pack([(i, i = 1, n_new)], state == kept))
+            key = key(:, pack([(i, i = 1, n_new)], state == kept))
+            n_new = count(state == kept)
+        end subroutine thin
 
         pure logical function key_before(ka, kb)
             integer(i8), intent(in) :: ka(2), kb(2)
