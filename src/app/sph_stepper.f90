@@ -12,7 +12,8 @@ module sph_stepper
     use sph_logger, only: log_info
     use sph_particles, only: particles_t, particles_init, particles_gather, KIND_FLUID, &
         KIND_VIRTUAL, &
-        HALO_MOVE, HALO_DENSITY, HALO_STRAIN, pack_widths, ALL_FIELDS, particles_reserve, &
+        HALO_MOVE, HALO_DENSITY, HALO_STRAIN, HALO_GHOST, pack_widths, ALL_FIELDS, &
+        particles_reserve, &
         particles_pack, particles_unpack
     use sph_physics, only: physics_t, physics_from_config, DENSITY_SUMMATION, &
         VISCOSITY_STRAIN_RATE, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR, SHIFTING_NONE, &
@@ -52,7 +53,7 @@ module sph_stepper
     use sph_zones, only: zones_t, zones_create
     use sph_transition_driver, only: level_stats_t, create_level_particles, &
         update_transition_zones_of => update_transition_zones, level_totals, &
-        refresh_virtual_fields, refine_uniform_state
+        refresh_virtual_fields, refine_uniform_state, set_virtual_masses
     implicit none
     private
     public :: simulation_solid_forces, simulation_write_forces, simulation_log_forces
@@ -951,6 +952,9 @@ contains
         call update_transition_zones_of(env, sim%zones, sim%level_phys, sim%solids, sim%domain, &
             sim%cfg%domain%box_lo, sim%cfg%domain%box_hi, sim%p, sim%next_id, sim%level_stats)
         call simulation_prepare_neighbours(sim, env)
+        ! the new virtuals' masses from the volumes their level leaves them, then the ghosts'
+        call set_virtual_masses(sim%zones, sim%level_phys, sim%p, sim%nl)
+        call halo_refresh(sim%halo, env, sim%p, HALO_GHOST)
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
         sim%transition_seconds = sim%transition_seconds + (MPI_Wtime() - start)
     end subroutine update_transition_zones
