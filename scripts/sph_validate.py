@@ -356,8 +356,7 @@ def case_multires(runner, args):
             block.failed.append(f"multires: {case} failed")
             continue
         snaps = snapshots_at(out, times)
-        text = sph_snapshot.namelist(sph_snapshot.load(snaps[-1]))
-        band = region_band(text)
+        band = region_band(sph_snapshot.namelist(sph_snapshot.load(snaps[-1])))
         status, jumps = script("sph_interface_profile.py", snaps[-1], "--figure",
                                os.path.join(ROOT, "doc", f"{case}_multires_profile.png"))
         worst = max([abs(float(v)) for v in re.findall(
@@ -384,14 +383,12 @@ def case_multires(runner, args):
     return [block]
 
 
-def region_band(text):
-    """(lo, hi) in y of the first &region box in a resolved input text."""
-    match = re.search(r"&region(.*?)/", text, re.S | re.I)
-    lo = re.search(r"lo\s*=\s*([^\n]+)", match.group(1), re.I)
-    hi = re.search(r"hi\s*=\s*([^\n]+)", match.group(1), re.I)
-    ylo = float(lo.group(1).replace("d", "e").split(",")[1])
-    yhi = float(hi.group(1).replace("d", "e").split(",")[1])
-    return ylo, yhi
+def region_band(nml):
+    """(lo, hi) in y of the first &region box of a resolved input (f90nml Namelist)."""
+    region = nml["region"]
+    if isinstance(region, list):
+        region = region[0]
+    return float(region["lo"][1]), float(region["hi"][1])
 
 
 def case_ranks(runner, args):
@@ -489,7 +486,12 @@ def main(argv=None):
             continue
         if long_case and args.skip_long and not args.only:
             continue
-        for block in func(runner, args):
+        try:
+            blocks = func(runner, args)
+        except Exception as exc:  # a broken case must not hide the others' results
+            failed.append(f"{name}: the measurement failed: {type(exc).__name__}: {exc}")
+            continue
+        for block in blocks:
             target = os.path.join(ROOT, "README.md") if block.name == "channel" else \
                 os.path.join(ROOT, "doc", "validation.md")
             if not replace_block(target, block.name, block.lines, stamp):
