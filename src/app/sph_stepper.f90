@@ -316,6 +316,11 @@ contains
             sim%phys%velocity_scale, ' m/s, length scale ', sim%phys%length_scale, &
             ' m, wall layers ', wall_layers(sim%phys)
         call log_info(trim(line))
+        if (sim%phys%transport_velocity) then
+            write(line, '(a,es12.5,a)') '         transport velocity: background pressure ', &
+                sim%phys%transport_pressure, ' Pa'
+            call log_info(trim(line))
+        end if
         write(line, '(a,i0,a,i0,a,f6.3)') 'particles: ', global_sum(env, int(sim%p%n_owned, i8)), &
             ' real (fluid ', global_sum(env, int(count(sim%p%kind(1:sim%p%n_owned) == KIND_FLUID), &
                 i8)), &
@@ -655,7 +660,7 @@ contains
         type(simulation_t), intent(inout) :: sim
         real(wp), intent(in) :: dt
         call save_step_start(sim%p)
-        call advance(sim%p, 0.5_wp * dt, integrated_density(sim))
+        call advance(sim%p, 0.5_wp * dt, integrated_density(sim), sim%phys%transport_velocity)
     end subroutine predictor
 
     !> Ghosts take their owners' predicted positions and velocities.
@@ -685,7 +690,7 @@ contains
     subroutine corrector(sim, dt)
         type(simulation_t), intent(inout) :: sim
         real(wp), intent(in) :: dt
-        call advance(sim%p, dt, integrated_density(sim))
+        call advance(sim%p, dt, integrated_density(sim), sim%phys%transport_velocity)
         sim%time = sim%time + dt
         sim%step = sim%step + 1
         sim%last_limits%dt = dt

@@ -83,6 +83,10 @@ module sph_particles
         real(wp), allocatable :: v_old(:, :)
         real(wp), allocatable :: rho_old(:)
         real(wp), allocatable :: e_old(:)
+        ! transport-velocity formulation: the particles move with v + dv_transport; the
+        ! background pressure's acceleration gives dv_transport = dt_stage dvdt_background
+        real(wp), allocatable :: dv_transport(:, :)
+        real(wp), allocatable :: dvdt_background(:, :)
         ! viscous strain rate (xx, yy, zz, xy, xz, yz) for the strain-rate viscosity
         real(wp), allocatable :: strain(:, :)
         ! wall particles: unit normal into the fluid and distance behind the wall plane
@@ -218,6 +222,9 @@ contains
         call op%real2(p%v_old, field_info_t('velocity_old', 3, 0))
         call op%real1(p%rho_old, field_info_t('density_old', 1, 0))
         call op%real1(p%e_old, field_info_t('energy_old', 1, 0))
+        call op%real2(p%dv_transport, field_info_t('transport_offset', 3, ckpt + &
+            FIELD_OPTIONAL + ghost + move))
+        call op%real2(p%dvdt_background, field_info_t('background_acceleration', 3, 0))
         call op%real2(p%strain, field_info_t('strain_rate', 6, ghost + HALO_STRAIN))
         call op%real2(p%wall_normal, field_info_t('wall_normal', 3, ckpt + ghost))
         call op%real1(p%wall_distance, field_info_t('wall_distance', 1, ckpt + ghost))
