@@ -87,9 +87,6 @@ module sph_particles
         ! background pressure's acceleration gives dv_transport = dt_stage dvdt_background
         real(wp), allocatable :: dv_transport(:, :)
         real(wp), allocatable :: dvdt_background(:, :)
-        ! Morris wall particles: kernel-weighted velocity of the fluid around them (Adami's
-        ! no-slip velocity is 2 v_wall minus this), made with the extrapolated pressure
-        real(wp), allocatable :: wall_fluid_velocity(:, :)
         ! viscous strain rate (xx, yy, zz, xy, xz, yz) for the strain-rate viscosity
         real(wp), allocatable :: strain(:, :)
         ! wall particles: unit normal into the fluid and distance behind the wall plane
@@ -228,8 +225,6 @@ contains
         call op%real2(p%dv_transport, field_info_t('transport_offset', 3, ckpt + &
             FIELD_OPTIONAL + ghost + move))
         call op%real2(p%dvdt_background, field_info_t('background_acceleration', 3, 0))
-        call op%real2(p%wall_fluid_velocity, field_info_t('wall_fluid_velocity', 3, &
-            ghost + HALO_DENSITY))
         call op%real2(p%strain, field_info_t('strain_rate', 6, ghost + HALO_STRAIN))
         call op%real2(p%wall_normal, field_info_t('wall_normal', 3, ckpt + ghost))
         call op%real1(p%wall_distance, field_info_t('wall_distance', 1, ckpt + ghost))

@@ -47,9 +47,6 @@ module sph_physics
         integer :: wall_pressure = WALL_PRESSURE_CONTINUITY
         !> transport-velocity formulation (Adami, Hu & Adams 2013): the particles move with
         !> v + dt a_b, a_b the acceleration of the background pressure transport_pressure
-        !> Morris wall particles' velocity in the viscous term: beta extrapolation (Morris),
-        !> or 2 v_wall - the kernel-weighted fluid velocity (Adami et al. 2012)
-        logical :: adami_wall_velocity = .false.
         logical :: transport_velocity = .false.
         real(wp) :: transport_pressure = 0.0_wp    !< Pa, p_b
     end type physics_t
@@ -159,7 +156,6 @@ contains
         phys%wall_pressure = WALL_PRESSURE_CONTINUITY
         if (trim(cfg%numerics%wall_pressure) == 'extrapolated') &
             phys%wall_pressure = WALL_PRESSURE_EXTRAPOLATED
-        phys%adami_wall_velocity = trim(cfg%numerics%wall_velocity) == 'adami'
         phys%transport_velocity = cfg%numerics%transport_velocity
         ! Adami et al. (2013) take p_b = p0 = rho0 c^2, the equation of state's stiffness
         phys%transport_pressure = cfg%numerics%transport_pressure

@@ -36,7 +36,6 @@ module sph_physics_input
         real(wp) :: shifting_coefficient  !< A of Lind's D = A h |v|max dt
         real(wp) :: shifting_limit        !< largest shift per step, in units of dx
         character(len=name_len) :: wall_pressure  !< 'continuity' or 'extrapolated'
-        character(len=name_len) :: wall_velocity  !< no-slip: 'morris' or 'adami'
         !> transport-velocity formulation (Adami, Hu & Adams 2013)
         logical :: transport_velocity
         real(wp) :: transport_pressure    !< Pa, p_b of the transport velocity; 0 = rho0 c^2
@@ -126,17 +125,6 @@ contains
             unit='Pa', doc="background pressure p_b of the transport velocity; 0 = " // &
             "rho0 c^2 (the equation of state's p0, as Adami et al. use)")
         if (num%transport_velocity) call check_transport_velocity(grp, num)
-        call grp%get_string('wall_velocity', num%wall_velocity, 'morris', &
-            choices=[character(len=8) :: 'morris', 'adami'], &
-            doc="Morris wall particles' velocity in the viscous term: Morris' extrapolation " // &
-            "beta (v_fluid - v_wall), or 2 v_wall minus the kernel-weighted fluid " // &
-            "velocity around the wall particle (Adami et al. 2012)")
-        if (trim(num%wall_velocity) /= 'morris' .and. &
-            trim(num%wall_pressure) /= 'extrapolated') call grp%error('wall_velocity', &
-            "'adami' needs wall_pressure = 'extrapolated' (the same fluid average)")
-        if (trim(num%wall_velocity) /= 'morris' .and. &
-            trim(num%viscosity_model) /= 'morris') call grp%error('wall_velocity', &
-            "'adami' works with viscosity_model = 'morris' only")
         if (num%repulsive_n1 <= num%repulsive_n2) &
             call grp%error('repulsive_n1, repulsive_n2', 'need n1 > n2 >= 1')
         if (trim(num%viscosity_model) == 'strain_rate' .and. &

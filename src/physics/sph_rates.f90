@@ -66,8 +66,6 @@ contains
     !> back exactly as hard as the fluid next to it presses, wherever walls of different
     !> velocities meet, instead of carrying a density of its own that the fluid can squeeze
     !> into a corner. A wall particle without fluid in reach takes the rest density.
-    !> The kernel-weighted fluid velocity around it is kept too (wall_fluid_velocity; its
-    !> own velocity when no fluid is in reach) for Adami's no-slip velocity.
     !> The fluid pressures must be current (update_pressure) on entry.
     subroutine extrapolate_wall_density(phys, p, nl, level)
         type(physics_t), intent(in) :: phys
@@ -75,14 +73,13 @@ contains
         type(neighbour_list_t), intent(in) :: nl
         integer, intent(in), optional :: level
         integer :: i, k, j
-        real(wp) :: d(3), w, sum_w, sum_p, support2, sum_v(3)
+        real(wp) :: d(3), w, sum_w, sum_p, support2
         support2 = phys%kernel%support**2
         do i = 1, p%n_owned
             if (p%kind(i) /= KIND_WALL) cycle
             if (other_level(p, i, level)) cycle
             sum_w = 0.0_wp
             sum_p = 0.0_wp
-            sum_v = 0.0_wp
             do k = nl%start(i), nl%start(i + 1) - 1
                 j = nl%index(k)
                 if (.not. moves_with_flow(p%kind(j))) cycle
@@ -91,10 +88,7 @@ contains
                 w = phys%kernel%w(norm2(d))
                 sum_w = sum_w + w
                 sum_p = sum_p + (p%p(j) + p%rho(j) * dot_product(phys%body_force, d)) * w
-                sum_v = sum_v + p%v(:, j) * w
             end do
-            p%wall_fluid_velocity(:, i) = p%v(:, i)
-            if (sum_w > 0.0_wp) p%wall_fluid_velocity(:, i) = sum_v / sum_w
             if (sum_w > 0.0_wp) then
                 p%rho(i) = eos_density(phys%eos, sum_p / sum_w - phys%background_pressure, &
                     phys%rho0, phys%c, phys%gamma)
@@ -396,14 +390,8 @@ contains
                     coeff = visc_scale * (state(6, i) + state(6, j)) * visc_near(m)
                     vvisc = vij
                     if (morris_walls .and. p%kind(j) == KIND_WALL) then
-                        if (phys%adami_wall_velocity) then
-                            ! v_i - (2 v_wall - fluid velocity around the wall particle)
-                            vvisc = p%v(:, i) - (2.0_wp * state(1:3, j) - &
-                                p%wall_fluid_velocity(:, j))
-                        else
-                            beta = wall_beta(phys, p, i, j, solids)
-                            vvisc = beta * vij
-                        end if
+                        beta = wall_beta(phys, p, i, j, solids)
+                        vvisc = beta * vij
                     end if
                     f = f + coeff * vvisc
                     e_pair = e_pair - 0.5_wp * coeff * dot_product(vvisc, vvisc)
