@@ -12,7 +12,8 @@ module sph_stepper
     use sph_logger, only: log_info
     use sph_particles, only: particles_t, particles_init, particles_gather, KIND_FLUID, &
         KIND_VIRTUAL, &
-        HALO_MOVE, HALO_DENSITY, HALO_STRAIN, pack_widths, ALL_FIELDS, particles_reserve, &
+        HALO_MOVE, HALO_TRANSPORT, HALO_DENSITY, HALO_STRAIN, pack_widths, ALL_FIELDS, &
+        particles_reserve, &
         particles_pack, particles_unpack
     use sph_physics, only: physics_t, physics_from_config, DENSITY_SUMMATION, &
         VISCOSITY_STRAIN_RATE, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR, SHIFTING_NONE, &
@@ -379,6 +380,8 @@ contains
         sim%p%n_ghost = 0
         sim%p%n_total = sim%p%n_owned
         call halo_build(sim%halo, sim%domain, env, sim%p)
+        ! the transport offsets travel only in runs that use them, so new ghosts fetch theirs
+        if (sim%phys%transport_velocity) call halo_refresh(sim%halo, env, sim%p, HALO_TRANSPORT)
         call refresh_neighbours(sim)
         sim%drift = 0.0_wp
     end subroutine simulation_prepare_neighbours
@@ -667,8 +670,16 @@ contains
     subroutine refresh_halo(sim, env)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
-        call halo_refresh(sim%halo, env, sim%p, HALO_MOVE)
+        call halo_refresh(sim%halo, env, sim%p, moved_fields(sim))
     end subroutine refresh_halo
+
+    !> What changes when particles move: positions, velocities, density, energy, and with the
+    !> transport velocity its offset (sph_particles HALO_TRANSPORT).
+    pure integer function moved_fields(sim)
+        type(simulation_t), intent(in) :: sim
+        moved_fields = HALO_MOVE
+        if (sim%phys%transport_velocity) moved_fields = HALO_MOVE + HALO_TRANSPORT
+    end function moved_fields
 
     !> Mirrors and the neighbour list for the predicted positions. A particle moves at most
     !> (vmax + amax dt/2) dt/2 in the half step, after the drift since the list was built;
@@ -734,13 +745,13 @@ contains
         real(wp) :: start
         sim%drift = sim%drift + global_max(env, max_step_displacement(sim%p))
         if (2.0_wp * sim%drift < 0.5_wp * sim%list_skin) then
-            call halo_refresh(sim%halo, env, sim%p, HALO_MOVE)
+            call halo_refresh(sim%halo, env, sim%p, moved_fields(sim))
             if (uses_mirrors(sim)) call refresh_neighbours(sim)
             if (multires(sim)) then
                 ! the virtual particles take the other level's fields where they now are
                 start = MPI_Wtime()
                 call refresh_virtual_fields(sim%zones, sim%level_phys, sim%p, sim%level_stats)
-                call halo_refresh(sim%halo, env, sim%p, HALO_MOVE)
+                call halo_refresh(sim%halo, env, sim%p, moved_fields(sim))
                 sim%transition_seconds = sim%transition_seconds + (MPI_Wtime() - start)
             end if
         else
