@@ -12,7 +12,8 @@ module sph_stepper
     use sph_logger, only: log_info
     use sph_particles, only: particles_t, particles_init, particles_gather, KIND_FLUID, &
         KIND_VIRTUAL, &
-        HALO_MOVE, HALO_DENSITY, HALO_STRAIN, HALO_GHOST, pack_widths, ALL_FIELDS, &
+        HALO_MOVE, HALO_TRANSPORT, HALO_DENSITY, HALO_STRAIN, HALO_GHOST, pack_widths, &
+        ALL_FIELDS, &
         particles_reserve, &
         particles_pack, particles_unpack
     use sph_physics, only: physics_t, physics_from_config, DENSITY_SUMMATION, &
@@ -317,6 +318,11 @@ contains
             sim%phys%velocity_scale, ' m/s, length scale ', sim%phys%length_scale, &
             ' m, wall layers ', wall_layers(sim%phys)
         call log_info(trim(line))
+        if (sim%phys%transport_velocity) then
+            write(line, '(a,es12.5,a)') '         transport velocity: background pressure ', &
+                sim%phys%transport_pressure, ' Pa'
+            call log_info(trim(line))
+        end if
         write(line, '(a,i0,a,i0,a,f6.3)') 'particles: ', global_sum(env, int(sim%p%n_owned, i8)), &
             ' real (fluid ', global_sum(env, int(count(sim%p%kind(1:sim%p%n_owned) == KIND_FLUID), &
                 i8)), &
@@ -375,6 +381,8 @@ contains
         sim%p%n_ghost = 0
         sim%p%n_total = sim%p%n_owned
         call halo_build(sim%halo, sim%domain, env, sim%p)
+        ! the transport offsets travel only in runs that use them, so new ghosts fetch theirs
+        if (sim%phys%transport_velocity) call halo_refresh(sim%halo, env, sim%p, HALO_TRANSPORT)
         call refresh_neighbours(sim)
         sim%drift = 0.0_wp
     end subroutine simulation_prepare_neighbours
@@ -656,15 +664,23 @@ contains
         type(simulation_t), intent(inout) :: sim
         real(wp), intent(in) :: dt
         call save_step_start(sim%p)
-        call advance(sim%p, 0.5_wp * dt, integrated_density(sim))
+        call advance(sim%p, 0.5_wp * dt, integrated_density(sim), sim%phys%transport_velocity)
     end subroutine predictor
 
     !> Ghosts take their owners' predicted positions and velocities.
     subroutine refresh_halo(sim, env)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
-        call halo_refresh(sim%halo, env, sim%p, HALO_MOVE)
+        call halo_refresh(sim%halo, env, sim%p, moved_fields(sim))
     end subroutine refresh_halo
+
+    !> What changes when particles move: positions, velocities, density, energy, and with the
+    !> transport velocity its offset (sph_particles HALO_TRANSPORT).
+    pure integer function moved_fields(sim)
+        type(simulation_t), intent(in) :: sim
+        moved_fields = HALO_MOVE
+        if (sim%phys%transport_velocity) moved_fields = HALO_MOVE + HALO_TRANSPORT
+    end function moved_fields
 
     !> Mirrors and the neighbour list for the predicted positions. A particle moves at most
     !> (vmax + amax dt/2) dt/2 in the half step, after the drift since the list was built;
@@ -686,7 +702,7 @@ contains
     subroutine corrector(sim, dt)
         type(simulation_t), intent(inout) :: sim
         real(wp), intent(in) :: dt
-        call advance(sim%p, dt, integrated_density(sim))
+        call advance(sim%p, dt, integrated_density(sim), sim%phys%transport_velocity)
         sim%time = sim%time + dt
         sim%step = sim%step + 1
         sim%last_limits%dt = dt
@@ -730,13 +746,13 @@ contains
         real(wp) :: start
         sim%drift = sim%drift + global_max(env, max_step_displacement(sim%p))
         if (2.0_wp * sim%drift < 0.5_wp * sim%list_skin) then
-            call halo_refresh(sim%halo, env, sim%p, HALO_MOVE)
+            call halo_refresh(sim%halo, env, sim%p, moved_fields(sim))
             if (uses_mirrors(sim)) call refresh_neighbours(sim)
             if (multires(sim)) then
                 ! the virtual particles take the other level's fields where they now are
                 start = MPI_Wtime()
                 call refresh_virtual_fields(sim%zones, sim%level_phys, sim%p, sim%level_stats)
-                call halo_refresh(sim%halo, env, sim%p, HALO_MOVE)
+                call halo_refresh(sim%halo, env, sim%p, moved_fields(sim))
                 sim%transition_seconds = sim%transition_seconds + (MPI_Wtime() - start)
             end if
         else

@@ -166,6 +166,10 @@ contains
             size(bodies) > 0) call grp(1)%error('analytic', "'" // trim(cfg%run%analytic) // &
             "' describes an empty channel, but the input has &body groups; use " // &
             "analytic = 'none'")
+        ! the transition zones' virtual particles carry no transport velocity
+        if (cfg%numerics%transport_velocity .and. size(regions) > 0) call grp(5)%error( &
+            'transport_velocity', '.true. works with one resolution level only (no ' // &
+            '&region groups)')
         if (sum(grp%n_errors) == 0 .and. sum(bodies%n_errors) == 0 .and. &
             sum(regions%n_errors) == 0) call check_refinement(grp(10), regions, grp(3), &
             grp(5), grp(9), cfg%refinement, cfg%regions, cfg%domain, cfg%numerics, cfg%remesh)

@@ -23,7 +23,7 @@ module sph_particles
     public :: KIND_FLUID, KIND_WALL, KIND_VIRTUAL, KIND_MIRROR, moves_with_flow
     public :: FIELD_REAL, FIELD_INT8, FIELD_INT
     public :: FIELD_SNAPSHOT, FIELD_CHECKPOINT, FIELD_SHIFTED, FIELD_OPTIONAL
-    public :: HALO_GHOST, HALO_MOVE, HALO_DENSITY, HALO_STRAIN, ALL_FIELDS
+    public :: HALO_GHOST, HALO_MOVE, HALO_DENSITY, HALO_STRAIN, HALO_TRANSPORT, ALL_FIELDS
 
     integer, parameter :: KIND_FLUID = 0    !< moves with the flow
     integer, parameter :: KIND_WALL = 1     !< fixed wall particle, carries its wall's velocity
@@ -44,6 +44,9 @@ module sph_particles
     integer, parameter :: HALO_DENSITY = 32      !< refreshed after a summation density
     integer, parameter :: HALO_STRAIN = 64       !< refreshed after the strain rate
     integer, parameter :: FIELD_OPTIONAL = 128   !< a file may lack it: readers keep the default
+    !> sent after a halo build and with HALO_MOVE by runs with the transport velocity only (the
+    !> others do not pay for sending it)
+    integer, parameter :: HALO_TRANSPORT = 256
     integer, parameter :: ALL_FIELDS = -1        !< every field (migration, permutation)
 
     !> One field as the table describes it.
@@ -83,6 +86,10 @@ module sph_particles
         real(wp), allocatable :: v_old(:, :)
         real(wp), allocatable :: rho_old(:)
         real(wp), allocatable :: e_old(:)
+        ! transport-velocity formulation: the particles move with v + dv_transport; the
+        ! background pressure's acceleration gives dv_transport = dt_stage dvdt_background
+        real(wp), allocatable :: dv_transport(:, :)
+        real(wp), allocatable :: dvdt_background(:, :)
         ! viscous strain rate (xx, yy, zz, xy, xz, yz) for the strain-rate viscosity
         real(wp), allocatable :: strain(:, :)
         ! wall particles: unit normal into the fluid and distance behind the wall plane
@@ -218,6 +225,9 @@ contains
         call op%real2(p%v_old, field_info_t('velocity_old', 3, 0))
         call op%real1(p%rho_old, field_info_t('density_old', 1, 0))
         call op%real1(p%e_old, field_info_t('energy_old', 1, 0))
+        call op%real2(p%dv_transport, field_info_t('transport_offset', 3, ckpt + &
+            FIELD_OPTIONAL + HALO_TRANSPORT))
+        call op%real2(p%dvdt_background, field_info_t('background_acceleration', 3, 0))
         call op%real2(p%strain, field_info_t('strain_rate', 6, ghost + HALO_STRAIN))
         call op%real2(p%wall_normal, field_info_t('wall_normal', 3, ckpt + ghost))
         call op%real1(p%wall_distance, field_info_t('wall_distance', 1, ckpt + ghost))

@@ -45,6 +45,10 @@ module sph_physics
         real(wp) :: shifting_limit = 0.1_wp        !< largest shift per step / dx
         !> Morris wall particles' density: continuity, or from the fluid's pressure
         integer :: wall_pressure = WALL_PRESSURE_CONTINUITY
+        !> transport-velocity formulation (Adami, Hu & Adams 2013): the particles move with
+        !> v + dt a_b, a_b the acceleration of the background pressure transport_pressure
+        logical :: transport_velocity = .false.
+        real(wp) :: transport_pressure = 0.0_wp    !< Pa, p_b
     end type physics_t
 
 contains
@@ -152,6 +156,10 @@ contains
         phys%wall_pressure = WALL_PRESSURE_CONTINUITY
         if (trim(cfg%numerics%wall_pressure) == 'extrapolated') &
             phys%wall_pressure = WALL_PRESSURE_EXTRAPOLATED
+        phys%transport_velocity = cfg%numerics%transport_velocity
+        ! Adami et al. (2013) take p_b = p0 = rho0 c^2, the equation of state's stiffness
+        phys%transport_pressure = cfg%numerics%transport_pressure
+        if (phys%transport_pressure <= 0.0_wp) phys%transport_pressure = phys%rho0 * phys%c**2
     end subroutine physics_from_config
 
     !> Morris' viscous term is exact for a quadratic velocity field only if the discrete second

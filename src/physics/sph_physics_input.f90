@@ -36,6 +36,9 @@ module sph_physics_input
         real(wp) :: shifting_coefficient  !< A of Lind's D = A h |v|max dt
         real(wp) :: shifting_limit        !< largest shift per step, in units of dx
         character(len=name_len) :: wall_pressure  !< 'continuity' or 'extrapolated'
+        !> transport-velocity formulation (Adami, Hu & Adams 2013)
+        logical :: transport_velocity
+        real(wp) :: transport_pressure    !< Pa, p_b of the transport velocity; 0 = rho0 c^2
     end type numerics_input_t
 
 contains
@@ -115,6 +118,13 @@ contains
             choices=[character(len=12) :: 'continuity', 'extrapolated'], &
             doc="Morris wall particles' density: integrated like the fluid's, or " // &
             "extrapolated from the fluid's pressure each stage (Adami et al. 2012)")
+        call grp%get_logical('transport_velocity', num%transport_velocity, .false., &
+            doc='transport-velocity formulation (Adami, Hu & Adams 2013): the background ' // &
+            'pressure moves the particles, not the momentum')
+        call grp%get_real('transport_pressure', num%transport_pressure, 0.0_wp, min=0.0_wp, &
+            unit='Pa', doc="background pressure p_b of the transport velocity; 0 = " // &
+            "rho0 c^2 (the equation of state's p0, as Adami et al. use)")
+        if (num%transport_velocity) call check_transport_velocity(grp, num)
         if (num%repulsive_n1 <= num%repulsive_n2) &
             call grp%error('repulsive_n1, repulsive_n2', 'need n1 > n2 >= 1')
         if (trim(num%viscosity_model) == 'strain_rate' .and. &
@@ -128,6 +138,30 @@ contains
             call grp%error('wall_pressure', "'extrapolated' works with wall_model = " // &
                 "'morris' only (the other models have no wall particles in the sums)")
     end subroutine read_numerics_input
+
+    !> The transport-velocity formulation needs a density from the particles' positions (its
+    !> background pressure acts on their arrangement), wall particles that fill the support
+    !> and press back with the fluid's pressure (Adami et al. 2012, as in the 2013 paper),
+    !> and does the work of particle shifting itself: other choices are refused, naming the key.
+    subroutine check_transport_velocity(grp, num)
+        type(nml_group_t), intent(inout) :: grp
+        type(numerics_input_t), intent(in) :: num
+        character(len=*), parameter :: tvf = 'transport_velocity = .true. needs '
+        if (trim(num%density_method) /= 'summation') call grp%error('density_method', &
+            "'" // trim(num%density_method) // "': " // tvf // "density_method = " // &
+            "'summation' (the background pressure acts on the particles' arrangement)")
+        if (trim(num%wall_model) /= 'morris') call grp%error('wall_model', "'" // &
+            trim(num%wall_model) // "': " // tvf // "wall_model = 'morris' (wall " // &
+            'particles that fill the support)')
+        if (trim(num%wall_pressure) /= 'extrapolated') call grp%error('wall_pressure', &
+            "'" // trim(num%wall_pressure) // "': " // tvf // "wall_pressure = " // &
+            "'extrapolated' (the walls of Adami et al. 2012)")
+        if (trim(num%shifting) /= 'none') call grp%error('shifting', "'" // &
+            trim(num%shifting) // "' with transport_velocity = .true.: the transport " // &
+            "velocity already keeps the particles evenly spread; use shifting = 'none'")
+        if (trim(num%viscosity_model) /= 'morris') call grp%error('viscosity_model', "'" // &
+            trim(num%viscosity_model) // "': " // tvf // "viscosity_model = 'morris'")
+    end subroutine check_transport_velocity
 
     !> Where walls of different velocities meet at a corner (a lid-driven cavity), the lid's
     !> velocity jump drags fluid into the downstream corner at every step. Only a density
@@ -150,10 +184,13 @@ contains
         if (trim(num%density_method) /= 'summation') call num_grp%error('density_method', &
             "'" // trim(num%density_method) // "' compresses the corner particles " // &
             'without bound' // where // "; use 'summation'")
-        if (trim(fl%eos) /= 'morris' .and. .not. (fl%background_pressure > 0.0_wp)) &
+        ! the transport velocity's background pressure keeps the particles off the walls
+        if (trim(fl%eos) /= 'morris' .and. .not. (fl%background_pressure > 0.0_wp) .and. &
+            .not. num%transport_velocity) &
             call fluid_grp%error('eos, background_pressure', "'" // trim(fl%eos) // &
             "' without a background pressure lets the fluid's tension pull particles " // &
-            'into the walls' // where // "; use eos = 'morris' (p = c^2 rho) or give " // &
-            'background_pressure > 0 (a few rho0 U^2)')
+            'into the walls' // where // "; use eos = 'morris' (p = c^2 rho), give " // &
+            'background_pressure > 0 (a few rho0 U^2) or set &numerics ' // &
+            'transport_velocity = .true.')
     end subroutine check_moving_corners
 end module sph_physics_input

@@ -16,6 +16,16 @@
 !> only, with phys the physics of that level (its kernel); the neighbour list pairs particles
 !> of one level only, so each level is a complete SPH system of its own (real and virtual
 !> particles, walls of its spacing). Virtual particles (KIND_VIRTUAL) count as fluid.
+!> Transport-velocity formulation (phys%transport_velocity; Adami, Hu & Adams 2013, eqs. 7-8
+!> with V = m/rho): the momentum equation becomes
+!>   dv_i/dt = 1/m_i sum_j (V_i^2 + V_j^2) [-pt_ij grad W + 1/2 (A_i + A_j) . grad W] + visc + F
+!> with pt_ij = (rho_j p_i + rho_i p_j)/(rho_i + rho_j) and A = rho v (vt - v); the background
+!> pressure p_b acts only on the transport velocity vt, through
+!>   a_b,i = -p_b/m_i sum_j (V_i^2 + V_j^2) grad W   (dvdt_background),
+!> which vanishes on a regular lattice and pushes particles from crowded towards sparse
+!> places otherwise. Wall particles (with the fluid's extrapolated pressure) enter the
+!> pressure and background sums, not the A term (A of a wall is zero; as PySPH does). The
+!> viscous term stays Morris' (equal to Adami's for uniform density), with its walls.
 !> Morris walls need the distances of the fluid and the wall particle from the wall; with the
 !> solids given, a curved body's are measured as Morris et al. (1997, sec. 5) do: the fluid
 !> particle's is the body's signed distance at it, the wall particle's the distance behind the
@@ -238,12 +248,14 @@ contains
         real(wp) :: d(3), r2, grad(3), vij(3), vvisc(3), pterm, coeff, beta, xi(3)
         real(wp) :: drho, dv(3), de, rho_i, mu_i, q, sterm(3), eps_i(3, 3), eps_j(3, 3)
         real(wp) :: support2, m_i, m_j, vg, f(3), e_pair, visc_scale
+        real(wp) :: vol2, pt, fp(3), fb(3), dvb(3), a_i(3), a_j(3), p_b
         integer, allocatable :: near(:)   !< the neighbours of i within the support
         real(wp), allocatable :: d_near(:, :), r_near(:), r2_near(:), dwdr_near(:)
         real(wp), allocatable :: grad_near(:), visc_near(:)
         real(wp), allocatable :: state(:, :)  !< v, m, p/rho^2, 1/rho of all particles
         logical, allocatable :: paired(:)     !< owned fluid of this level: pair terms shared
-        logical :: repulsive_walls, morris_walls, strain_viscosity
+        logical :: repulsive_walls, morris_walls, strain_viscosity, tvf
+        real(wp), allocatable :: vol_sq(:)   !< transport velocity: (m/rho)^2 of all particles
 
         support2 = phys%kernel%support**2
         repulsive_walls = phys%walls == WALLS_REPULSIVE .or. phys%walls == WALLS_REPULSIVE_MIRROR
@@ -270,6 +282,15 @@ contains
             p%dvdt(:, i) = 0.0_wp
             p%dedt(i) = 0.0_wp
         end do
+        tvf = phys%transport_velocity
+        p_b = phys%transport_pressure
+        if (tvf) then
+            allocate(vol_sq(p%n_total))
+            vol_sq(:) = (p%m(1:p%n_total) / p%rho(1:p%n_total))**2
+            do i = 1, p%n_owned
+                if (.not. other_level(p, i, level)) p%dvdt_background(:, i) = 0.0_wp
+            end do
+        end if
 
         do i = 1, p%n_owned
             if (other_level(p, i, level)) cycle
@@ -289,7 +310,10 @@ contains
             drho = 0.0_wp
             dv = 0.0_wp
             de = 0.0_wp
+            dvb = 0.0_wp
             xi = p%x(:, i)
+            ! A_i = rho_i v_i (vt_i - v_i): (A_i . grad W)_a = a_i(a) (dv_transport_i . grad W)
+            if (tvf) a_i = rho_i * p%v(:, i)
             ! the pairs within the support not yet evaluated from the other side, then dW/dr
             ! of all of them in one kernel call
             n_near = 0
@@ -335,8 +359,25 @@ contains
                 vg = dot_product(vij, grad)
                 pterm = state(5, i) + state(5, j)
                 ! per unit mass of the partner: f is the force on i, e_pair its heating
-                f = -pterm * grad
-                e_pair = 0.5_wp * pterm * vg
+                if (tvf) then
+                    ! per unit mass of both: (V_i^2 + V_j^2) / (m_i m_j)
+                    vol2 = (vol_sq(i) + vol_sq(j)) / (m_i * m_j)
+                    pt = (p%rho(j) * p%p(i) + rho_i * p%p(j)) / (rho_i + p%rho(j))
+                    fp = -(vol2 * pt) * grad
+                    fb = -(vol2 * p_b) * grad
+                    f = fp
+                    if (p%kind(j) /= KIND_WALL) then
+                        a_j = p%rho(j) * state(1:3, j)
+                        f = f + (0.5_wp * vol2) * (a_i * dot_product(p%dv_transport(:, i), &
+                            grad) + a_j * dot_product(p%dv_transport(:, j), grad))
+                    end if
+                    e_pair = 0.5_wp * vol2 * pt * vg
+                    dvb = dvb + m_j * fb
+                    if (paired(j)) p%dvdt_background(:, j) = p%dvdt_background(:, j) - m_i * fb
+                else
+                    f = -pterm * grad
+                    e_pair = 0.5_wp * pterm * vg
+                end if
                 if (strain_viscosity) then
                     eps_j = tensor(p%strain(:, j))
                     do a = 1, 3
@@ -364,7 +405,10 @@ contains
                     p%dedt(j) = p%dedt(j) + m_i * e_pair
                 else
                     s = force_slot(j)
-                    if (s > 0) then
+                    if (s > 0 .and. tvf) then
+                        wall_forces(:, 1, s) = wall_forces(:, 1, s) - m_i * m_j * fp
+                        wall_forces(:, 2, s) = wall_forces(:, 2, s) - m_i * m_j * (f - fp)
+                    else if (s > 0) then
                         wall_forces(:, 1, s) = wall_forces(:, 1, s) + m_i * m_j * pterm * grad
                         wall_forces(:, 2, s) = wall_forces(:, 2, s) - m_i * m_j * &
                             (f + pterm * grad)
@@ -375,6 +419,7 @@ contains
             p%drhodt(i) = p%drhodt(i) + drho
             p%dvdt(:, i) = p%dvdt(:, i) + dv
             p%dedt(i) = p%dedt(i) + de
+            if (tvf) p%dvdt_background(:, i) = p%dvdt_background(:, i) + dvb
         end do
         do i = 1, p%n_owned
             if (paired(i)) p%dvdt(:, i) = p%dvdt(:, i) + phys%body_force
@@ -431,8 +476,9 @@ contains
         integer :: i
         local_max_speed = 0.0_wp
         do i = 1, p%n_owned
+            ! the transport velocity, which moves the particles (v when it is off)
             if (moves_with_flow(p%kind(i))) &
-                local_max_speed = max(local_max_speed, norm2(p%v(:, i)))
+                local_max_speed = max(local_max_speed, norm2(p%v(:, i) + p%dv_transport(:, i)))
         end do
     end function local_max_speed
 
