@@ -83,6 +83,9 @@ module sph_stepper
         real(wp) :: drift = 0.0_wp
         type(timestep_limits_t) :: last_limits
         real(wp) :: first_dt = 0.0_wp      !< the run's first time step (health check)
+        !> the last step as the limits (or &numerics fixed_dt) set it, before it was shortened
+        !> to land on an output time or t_end: what the health check watches for a collapse
+        real(wp) :: uncapped_dt = 0.0_wp
         !> force of the fluid on each solid from the last rates: (xyz, pressure|viscous, solid),
         !> this rank's fluid particles only (simulation_solid_forces sums over ranks)
         real(wp), allocatable :: wall_forces(:, :, :)
@@ -646,6 +649,7 @@ contains
         ! a fixed step (&numerics fixed_dt) overrides the limit: the health checks catch it
         ! when it is too large
         if (sim%cfg%numerics%fixed_dt > 0.0_wp) dt = sim%cfg%numerics%fixed_dt
+        sim%uncapped_dt = dt
         if (present(dt_cap)) dt = min(dt, dt_cap)
         call predictor(sim, dt)
         call refresh_halo(sim, env)
@@ -1026,9 +1030,11 @@ contains
         character(len=256) :: where
         integer :: reporter, stat
         type(h5_file_t) :: file
-        if (sim%first_dt <= 0.0_wp) sim%first_dt = sim%last_limits%dt
+        ! a step shortened to land on an output time is not a collapse: the check watches the
+        ! step the limits asked for
+        if (sim%first_dt <= 0.0_wp) sim%first_dt = sim%uncapped_dt
         call check_particles(sim%cfg%health, sim%phys%rho0, sim%solids, sim%p, problem)
-        call check_timestep(sim%cfg%health, sim%first_dt, sim%last_limits%dt, problem)
+        call check_timestep(sim%cfg%health, sim%first_dt, sim%uncapped_dt, problem)
         if (global_max(env, int(problem%code, i8)) == HEALTH_OK) return
         reporter = int(-global_max(env, int(merge(-env%rank, -huge(0), &
             problem%code /= HEALTH_OK), i8)))
