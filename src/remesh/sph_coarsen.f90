@@ -41,6 +41,21 @@
 !> coarsened at dx/2: count exact, mean 1.96-1.97x, CV 0.97-1.03x the refined set's.
 !> Only dim = 2 and 3 are tuned; dim = 1 is refused.
 !>
+!> Count target (optional n_target). On a disordered set (a developed flow that has
+!> sheared or clumped, or such a flow refined) class 1 is a random maximal set at radius
+!> r_conflict = 0.875 of the new spacing: about 0.7-0.8 N/2^dim, not N/2^dim (measured on the
+!> developed cylinder flow: 0.72-0.77), so every same-level remesh of such a flow lost about
+!> a quarter of its particles. Given n_target, a second pass fills the gaps: in the same
+!> order, a particle not yet kept is kept when no kept particle (either pass) lies within
+!> r_fill < r_conflict, with r_fill the largest radius (bisection, FILL_STEPS halvings between
+!> R_FILL_MIN dx and r_conflict) whose kept count reaches n_target. Where class 1 already
+!> covers the set (a near-lattice: every other particle lies within 1.41 dx of a kept one)
+!> nothing is added for r_fill above that; the gaps of a disordered set get particles at
+!> r_fill (0.70-0.72 of the new spacing on the cylinder flow), so the kept set is spread
+!> evenly at the count asked for, and no two kept particles are closer than R_FILL_MIN dx =
+!> 0.4 of the new spacing. If even r_fill = R_FILL_MIN dx does not reach n_target (too few
+!> candidates), that set is kept.
+!>
 !> Periodic: with box (lengths of the axes, domain [0, box)) neighbours are found through
 !> periodic images (minimum image); the box must exceed 2 r_row per axis. Ids must be >= 0 and
 !> unique (ties in the order are broken by id; a repeated id is refused).
@@ -57,6 +72,9 @@ module sph_coarsen
     real(wp), parameter :: PHASE_CUT = 0.25_wp
     !> Deviations are summed as integers in units of 2^-DEV_BITS.
     integer, parameter :: DEV_BITS = 30
+    !> Smallest fill radius (in dx: 0.4 of the new spacing 2 dx) and the bisection's steps.
+    real(wp), parameter :: R_FILL_MIN = 0.8_wp
+    integer, parameter :: FILL_STEPS = 20
 
 contains
 
@@ -79,8 +97,10 @@ contains
     !> a caller that knows each particle's lattice parity (particles carry it through a run,
     !> sph_transition) gets a kept set that moves with the flow instead of jumping when the
     !> flow has carried the particles past PHASE_CUT.
+    !> n_target, when present, is the count to reach by the fill pass (module header); the
+    !> particles it adds get tag KEPT_CLASS.
     subroutine coarsen_select(dim, n, x, ids, dx, n_kept, kept, tag, stat, errmsg, box, &
-            given_match)
+            given_match, n_target)
         integer, intent(in) :: dim, n
         real(wp), intent(in) :: x(:, :), dx
         integer(i8), intent(in) :: ids(:)
@@ -91,9 +111,11 @@ contains
         character(len=*), intent(out), optional :: errmsg
         real(wp), intent(in), optional :: box(3)
         logical, intent(in), optional :: given_match(:)
+        integer, intent(in), optional :: n_target
         real(wp) :: r_conflict, r_row, bx(3), rc2
         logical :: periodic
         integer, allocatable :: astart(:), adj(:), order(:)
+        real(wp), allocatable :: adj_r2(:)
         integer(i8), allocatable :: h(:)
         logical, allocatable :: seen(:), match(:)
         integer :: i, k, p, j, t
@@ -157,11 +179,66 @@ contains
             tag(i) = t
         end do
         n_kept = count(tag(1:n) == KEPT_CLASS)
+        if (present(n_target)) then
+            if (n_kept < n_target) call fill_to_target(n_target)
+        end if
         deallocate(kept)
         allocate(kept(n_kept))
         kept = pack([(i, i = 1, n)], tag(1:n) == KEPT_CLASS)
 
     contains
+
+        !> The fill pass (module header): the largest r_fill whose kept count reaches want;
+        !> tag and n_kept updated.
+        subroutine fill_to_target(want)
+            integer, intent(in) :: want
+            logical, allocatable :: keep(:), best(:)
+            real(wp) :: lo, hi, r_fill
+            integer :: step, n_fill
+            allocate(best(n))
+            lo = R_FILL_MIN * dx
+            hi = r_conflict
+            call fill(lo, keep, n_fill)
+            best = keep
+            if (n_fill >= want) then
+                do step = 1, FILL_STEPS
+                    r_fill = 0.5_wp * (lo + hi)
+                    call fill(r_fill, keep, n_fill)
+                    if (n_fill >= want) then
+                        lo = r_fill
+                        best = keep
+                    else
+                        hi = r_fill
+                    end if
+                end do
+            end if
+            where (best .and. tag(1:n) /= KEPT_CLASS) tag(1:n) = KEPT_CLASS
+            n_kept = count(tag(1:n) == KEPT_CLASS)
+        end subroutine fill_to_target
+
+        !> Class 1 plus, in tagging order, every particle with no kept particle within r.
+        subroutine fill(r, keep, n_keep)
+            real(wp), intent(in) :: r
+            logical, allocatable, intent(inout) :: keep(:)
+            integer, intent(out) :: n_keep
+            integer :: kk, ii, pp
+            logical :: free
+            if (.not. allocated(keep)) allocate(keep(n))
+            keep = tag(1:n) == KEPT_CLASS
+            do kk = 1, n
+                ii = order(kk)
+                if (keep(ii)) cycle
+                free = .true.
+                do pp = astart(ii), astart(ii + 1) - 1
+                    if (keep(adj(pp)) .and. adj_r2(pp) < r * r) then
+                        free = .false.
+                        exit
+                    end if
+                end do
+                keep(ii) = free
+            end do
+            n_keep = count(keep)
+        end subroutine fill
 
         !> Tagging neighbours within r_conflict (through periodic images if periodic),
         !> deduplicated, and the lattice parity match of every particle from its rows.
@@ -169,14 +246,14 @@ contains
             real(wp), allocatable :: xa(:, :)
             integer, allocatable :: orig(:)
             type(neighbour_list_t) :: nl
-            integer :: a, m, s, ntot, b, ax, c, row_count(3)
+            integer :: a, m, s, ntot, b, ax, c, row_count(3), dup
             integer(i8) :: dev_sum(3)
             real(wp) :: d(3), r2, u, scale
             logical :: in_row
             scale = 2.0_wp**DEV_BITS
             call with_periodic_images(dim, n, x, periodic, bx, r_row, xa, orig, ntot)
             call build_neighbour_list(xa, ntot, n, dim, r_row, nl)
-            allocate(astart(n + 1), adj(max(nl%n_pairs, 1)))
+            allocate(astart(n + 1), adj(max(nl%n_pairs, 1)), adj_r2(max(nl%n_pairs, 1)))
             m = 0
             do a = 1, n
                 astart(a) = m + 1
@@ -198,9 +275,16 @@ contains
                         row_count(ax) = row_count(ax) + 1
                     end do
                     r2 = sum(d(1:dim)**2)
-                    if (r2 >= rc2 .or. any(adj(astart(a):m) == b)) cycle
+                    if (r2 >= rc2) cycle
+                    dup = findloc(adj(astart(a):m), b, dim=1)
+                    if (dup > 0) then
+                        ! another periodic image of b: the fill pass needs the nearest
+                        adj_r2(astart(a) + dup - 1) = min(adj_r2(astart(a) + dup - 1), r2)
+                        cycle
+                    end if
                     m = m + 1
                     adj(m) = b
+                    adj_r2(m) = r2
                 end do
                 match(a) = .true.
                 do ax = 1, dim
