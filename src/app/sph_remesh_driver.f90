@@ -78,6 +78,8 @@ module sph_remesh_driver
     real(wp), parameter :: REACH = 5.0_wp
     !> mirror reach of the transfer next to solids, in units of h (see the module header)
     real(wp), parameter :: MIRROR_REACH = 3.0_wp
+    !> same-level remeshing keeps no new particle closer than this (in dx) to a solid
+    real(wp), parameter :: SAME_LEVEL_WALL_GAP = 0.4_wp
 
     !> What a remesh did (global values, the same on every rank).
     type :: remesh_report_t
@@ -168,8 +170,13 @@ contains
         if (refused()) return
         ! fresh ids for refined particles (collective; only rank 0 has keys)
         if (mode == REMESH_REFINE .or. mode == REMESH_SAME) call fresh_ids()
-        if (env%rank == 0 .and. mode == REMESH_SAME) call coarsen_step(dx / 2.0_wp, my_stat, &
-            message)
+        ! same level: back to the count the fluid had (the fill pass of sph_coarsen), with
+        ! the first row about half a spacing from each solid, as in the initial lattice (the
+        ! refined set's rows next to a plane wall lie at 0.5 and 1.0 dx: none is dropped)
+        if (env%rank == 0 .and. mode == REMESH_SAME) then
+            call keep_off_solids(SAME_LEVEL_WALL_GAP * dx)
+            call coarsen_step(dx / 2.0_wp, n, my_stat, message)
+        end if
         if (env%rank == 0 .and. my_stat == 0) call transfer(my_stat, message)
         if (refused()) return
 
@@ -246,7 +253,7 @@ contains
                 allocate(xn(3, n))
                 xn = x(:, 1:n)
                 n_new = n
-                call coarsen_step(dx, st, msg)
+                call coarsen_step(dx, nint(real(n, wp) / 2.0_wp**dim), st, msg)
                 return
             case default
                 st = 1
@@ -255,9 +262,11 @@ contains
             if (st /= 0) msg = trim(text)
         end subroutine new_positions
 
-        !> Keep the coarsen_select set of xn/idn (spacing dxs).
-        subroutine coarsen_step(dxs, st, msg)
+        !> Keep the coarsen_select set of xn/idn (spacing dxs), filled up to n_target particles
+        !> where the set is disordered.
+        subroutine coarsen_step(dxs, n_target, st, msg)
             real(wp), intent(in) :: dxs
+            integer, intent(in) :: n_target
             integer, intent(out) :: st
             character(len=:), allocatable, intent(inout) :: msg
             integer, allocatable :: kept(:), tag(:)
@@ -265,7 +274,7 @@ contains
             character(len=200) :: text
             text = ''
             call coarsen_select(dim, n_new, xn, idn, dxs, n_kept, kept, tag, st, text, &
-                algorithm_box(dxs))
+                algorithm_box(dxs), n_target=n_target)
             if (st /= 0) then
                 msg = trim(text)
                 return
@@ -274,6 +283,25 @@ contains
             idn = idn(kept)
             n_new = n_kept
         end subroutine coarsen_step
+
+        !> Rank 0: drop the candidates xn/idn closer than gap to any solid surface.
+        subroutine keep_off_solids(gap)
+            real(wp), intent(in) :: gap
+            logical, allocatable :: clear(:)
+            integer :: a, s
+            if (.not. present(solids)) return
+            if (.not. allocated(solids%list)) return
+            allocate(clear(n_new))
+            clear = .true.
+            do a = 1, n_new
+                do s = 1, size(solids%list)
+                    if (solid_distance(solids%list(s), xn(:, a) + box_lo) < gap) clear(a) = .false.
+                end do
+            end do
+            xn = xn(:, pack([(a, a = 1, n_new)], clear))
+            idn = idn(pack([(a, a = 1, n_new)], clear))
+            n_new = size(idn)
+        end subroutine keep_off_solids
 
         !> ids for the keys in idn (all ranks take part; rank 0 holds the keys).
         subroutine fresh_ids()
