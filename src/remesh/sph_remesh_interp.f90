@@ -20,7 +20,10 @@
 !>    kept in place (centre of mass conserved to round-off). If a corrected weight is negative
 !>    or the system singular (too few or one-sided new neighbours: cloud edges, walls), that old
 !>    particle falls back to the uncorrected normalised weights W_ia / sum_a W_ia (still
-!>    conservative, centroid not kept); such particles are counted (n_mass_fallback).
+!>    conservative, centroid not kept); such particles are counted (n_mass_fallback). An old
+!>    particle with no new particle in its support at all (alone in a void of a developed
+!>    flow) hands everything to its nearest new particle within 4 h, also counted as a
+!>    fallback.
 !>  - Velocity is interpolated, not transferred: at each new particle a, the corrected SPH
 !>    (first-order consistent) interpolant of the old velocities with weights
 !>    u_ai = W_ia V_i (1 + gamma_a . (x_i - x_a)), V_i = m_i / rho_i, gamma_a such that
@@ -38,7 +41,7 @@
 !>    Kinetic energy is not conserved exactly.
 !>  - Energy: e_a = (transferred m e) / m_a, so the total sum m e is conserved.
 !>  - Density: rho_a = m_a / (transferred volume), exact (rho_a = rho) for a uniform density.
-!>  - Errors: an old particle with no new particle in its support (its mass would be lost,
+!>  - Errors: an old particle with no new particle within 4 h (its mass would be lost,
 !>    stat = 1), or a new particle with no old particle in its support (it would get no mass,
 !>    stat = 2). Without stat, error stop.
 module sph_remesh_interp
@@ -67,7 +70,7 @@ contains
         integer, allocatable :: pold(:), pnew(:)
         logical, allocatable :: first_order(:)
         type(neighbour_list_t) :: nl
-        integer :: i, j, k, p, np, lost, empty, n_mfb, n_vfb, r, q
+        integer :: i, j, k, p, np, lost, empty, n_mfb, n_vfb, r, q, n_isolated
         real(wp) :: d(3), f, beta(3), mom_old(3), mom_new(3), mass_new, dv(3)
         logical :: ok
         character(len=120) :: msg
@@ -103,6 +106,8 @@ contains
             end do
         end do
 
+        call hand_isolated_to_nearest()
+
         ! moments per old particle (d = (x_a - x_i)/h)
         allocate(s0(n_old), s1(3, n_old), s2(3, 3, n_old))
         call moments(n_old, pold, 1.0_wp, s0, s1, s2)
@@ -115,7 +120,7 @@ contains
         end if
 
         ! local first-order corrected weights per old particle, fallback: normalised W
-        n_mfb = 0
+        n_mfb = n_isolated
         p = 1
         do j = 1, n_old
             q = p
@@ -200,6 +205,64 @@ contains
         if (present(n_velocity_fallback)) n_velocity_fallback = n_vfb
 
     contains
+
+        !> An old particle with no new particle within its support (alone in a void of a
+        !> developed flow, next to a body whose first row the new set keeps off the surface)
+        !> hands everything to its nearest new particle: one pair of negligible weight
+        !> ISOLATED_WEIGHT (so it does not bias that particle's velocity interpolation) is
+        !> inserted in its place in the pairs, grouped by old particle. Counted as a mass
+        !> fallback. Only within ISOLATED_REACH h: farther, the sets do not match (a caller's
+        !> error) and the particle stays lost (stat 1). Brute force over the new particles:
+        !> such particles are rare.
+        subroutine hand_isolated_to_nearest()
+            real(wp), parameter :: ISOLATED_WEIGHT = 1.0e-30_wp, ISOLATED_REACH = 4.0_wp
+            logical, allocatable :: paired(:)
+            real(wp), allocatable :: wb2(:)
+            integer, allocatable :: po2(:), pn2(:)
+            integer :: t, c, a, best
+            real(wp) :: dd(3), d2, best_d2
+            allocate(paired(n_old))
+            paired = .false.
+            paired(pold(1:np)) = .true.
+            n_isolated = count(.not. paired)
+            if (n_isolated == 0 .or. n_new == 0) then
+                n_isolated = 0
+                return
+            end if
+            allocate(wb2(np + n_isolated), po2(np + n_isolated), pn2(np + n_isolated))
+            c = 0
+            t = 1
+            do j = 1, n_old
+                do while (t <= np)
+                    if (pold(t) /= j) exit
+                    c = c + 1
+                    wb2(c) = wb(t); po2(c) = pold(t); pn2(c) = pnew(t)
+                    t = t + 1
+                end do
+                if (paired(j)) cycle
+                best = 0
+                best_d2 = huge(1.0_wp)
+                do a = 1, n_new
+                    dd = x_new(:, a) - x_old(:, j)
+                    dd(dim + 1:) = 0.0_wp
+                    d2 = sum(dd * dd)
+                    if (d2 < best_d2 .and. d2 <= (ISOLATED_REACH * h)**2) then
+                        best_d2 = d2
+                        best = a
+                    end if
+                end do
+                if (best == 0) cycle
+                c = c + 1
+                wb2(c) = ISOLATED_WEIGHT; po2(c) = j; pn2(c) = best
+            end do
+            n_isolated = c - np
+            np = c
+            call move_alloc(wb2, wb)
+            call move_alloc(po2, pold)
+            call move_alloc(pn2, pnew)
+            deallocate(w)
+            allocate(w(np))
+        end subroutine hand_isolated_to_nearest
 
         !> Zeroth, first and second moments of the current pair weights wb, gathered on the side
         !> given by owner (pold or pnew); d = sgn (x_new - x_old) / h, i.e. measured from the
