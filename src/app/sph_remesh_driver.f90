@@ -61,6 +61,7 @@ module sph_remesh_driver
         KIND_FLUID
     use sph_refine, only: refine_positions, WALL_BAND
     use sph_solids, only: solids_t, solid_distance, solid_reflect
+    use sph_remesh_relax, only: relax_displacements, RELAX_PASSES, RELAX_H_FACTOR
     use sph_coarsen, only: coarsen_select
     use sph_remesh_interp, only: remesh_transfer
     use sph_global_ids, only: assign_global_ids, global_max_id
@@ -176,6 +177,7 @@ contains
         if (env%rank == 0 .and. mode == REMESH_SAME) then
             call keep_off_solids(SAME_LEVEL_WALL_GAP * dx)
             call coarsen_step(dx / 2.0_wp, n, my_stat, message)
+            if (my_stat == 0) call relax_new_set()
         end if
         if (env%rank == 0 .and. my_stat == 0) call transfer(my_stat, message)
         if (refused()) return
@@ -302,6 +304,41 @@ contains
             idn = idn(pack([(a, a = 1, n_new)], clear))
             n_new = size(idn)
         end subroutine keep_off_solids
+
+        !> Rank 0: even out the volumes of the selected set xn (sph_remesh_relax), its
+        !> periodic images and mirrors across the solids pushing; a move that would bring a
+        !> particle closer than SAME_LEVEL_WALL_GAP dx to a solid is not made.
+        subroutine relax_new_set()
+            real(wp), allocatable :: y(:, :), moves(:, :)
+            integer, allocatable :: orig(:)
+            real(wp) :: reach, len_(3), z(3)
+            integer :: pass, ny, a, s, ax
+            logical :: clear
+            reach = 2.0_wp * RELAX_H_FACTOR * dx
+            len_ = box_hi - box_lo
+            allocate(moves(3, max(n_new, 1)))
+            do pass = 1, RELAX_PASSES
+                call with_mirrors_and_images(dim, box_lo, box_hi, periodic, solids, reach, &
+                    reach, n_new, xn, y, orig, ny)
+                call relax_displacements(dim, n_new, ny, y, dx, moves)
+                do a = 1, n_new
+                    z = xn(:, a) + moves(:, a)
+                    do ax = 1, dim
+                        if (periodic(ax)) z(ax) = modulo(z(ax), len_(ax))
+                    end do
+                    clear = .true.
+                    if (present(solids)) then
+                        if (allocated(solids%list)) then
+                            do s = 1, size(solids%list)
+                                if (solid_distance(solids%list(s), z + box_lo) < &
+                                    SAME_LEVEL_WALL_GAP * dx) clear = .false.
+                            end do
+                        end if
+                    end if
+                    if (clear) xn(:, a) = z
+                end do
+            end do
+        end subroutine relax_new_set
 
         !> ids for the keys in idn (all ranks take part; rank 0 holds the keys).
         subroutine fresh_ids()
