@@ -30,7 +30,8 @@ module sph_stepper
         compute_rates, extrapolate_wall_density, local_max_speed, local_max_acceleration
     use sph_shifting, only: shifting_diffusion, shift_particles
     use sph_timestep, only: timestep_limits_t, timestep_limits
-    use sph_integrator, only: save_step_start, advance, max_step_displacement
+    use sph_integrator, only: save_step_start, advance, max_step_displacement, verlet_drift, &
+        verlet_kick
     use sph_initial, only: create_lattice_particles
     use sph_particle_file, only: read_initial_particles
     use sph_global_ids, only: id_order
@@ -104,6 +105,12 @@ module sph_stepper
         !> wall seconds spent in the transition zones' updates (with their rebuild) so far
         real(wp) :: transition_seconds = 0.0_wp
         logical :: zones_due = .false.   !< the zones are made anew after this step
+        !> &numerics integrator = 'verlet': one rate evaluation per step, the rates of the
+        !> step-start state kept from the previous step (or evaluated again when stale)
+        logical :: verlet = .false.
+        !> the particles' rates do not belong to their current state (set-up, a restart from
+        !> a checkpoint without Verlet rates, a remesh, shifting): verlet evaluates them first
+        logical :: rates_stale = .true.
     end type simulation_t
 
 contains
@@ -154,6 +161,8 @@ contains
         sim%step = 0
         sim%next_remesh_time = huge(1.0_wp)
         if (cfg%remesh%every_time > 0.0_wp) sim%next_remesh_time = cfg%remesh%every_time
+        sim%verlet = trim(cfg%numerics%integrator) == 'verlet'
+        sim%rates_stale = .true.
     end subroutine setup_common
 
     !> The physics of every resolution level: the kernel (and what scales with it) at the
@@ -259,6 +268,7 @@ contains
         call read_checkpoint(env, path, sim%p, sim%domain, sim%time, sim%step, stored_input, &
             index_text, same_layout, stat, errmsg, stored_dx)
         if (stat /= 0) call fatal_collective('restart', errmsg)
+        sim%rates_stale = .not. verlet_input(stored_input)
         ! a remeshed (refined or coarsened) checkpoint holds particles of another spacing:
         ! the input must say so (kernel, masses of new walls, time step follow from dx)
         if (stored_dx > 0.0_wp .and. abs(stored_dx - cfg%domain%dx) > 1.0e-9_wp * stored_dx) then
@@ -287,6 +297,19 @@ contains
             'the one stored in the checkpoint; the new input is used')
         call log_setup(sim, env)
     end subroutine simulation_restart
+
+    !> Was a checkpoint written by a run with &numerics integrator = 'verlet' (its stored
+    !> input says so)? Its rates are then those the next step starts from, and a verlet run
+    !> continues with them bit for bit; any other checkpoint's rates are evaluated again.
+    logical function verlet_input(stored_input)
+        character(len=*), intent(in) :: stored_input
+        type(config_t) :: stored
+        integer :: stat
+        character(len=:), allocatable :: errmsg
+        call config_parse(stored, stored_input, 'checkpoint input', stat, errmsg)
+        verlet_input = stat == 0
+        if (verlet_input) verlet_input = trim(stored%numerics%integrator) == 'verlet'
+    end function verlet_input
 
     !> A checkpoint of a uniform run continued with &region groups: the regions are refined
     !> (sph_transition_driver refine_uniform_state) and the decomposition rebalanced.
@@ -637,12 +660,17 @@ contains
 
     !> One predictor-corrector step, at most dt_cap long (to land on output times). Ghosts,
     !> mirrors and the neighbour list are current on entry and on exit.
+    !> With &numerics integrator = 'verlet' one velocity-Verlet step instead (verlet_step).
     subroutine simulation_step(sim, env, dt_cap)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
         real(wp), intent(in), optional :: dt_cap
         real(wp) :: dt
 
+        if (sim%verlet) then
+            call verlet_step(sim, env, dt_cap)
+            return
+        end if
         call evaluate_rates(sim, env)
         sim%last_limits = stable_timestep(sim, env)
         dt = sim%last_limits%dt
@@ -662,6 +690,41 @@ contains
         call update_transition_zones(sim, env)
         call check_health(sim, env)
     end subroutine simulation_step
+
+    !> One velocity-Verlet step (sph_integrator verlet_drift, verlet_kick) with one rate
+    !> evaluation: the step-start rates are those kept from the previous step (evaluated
+    !> here only when stale); the time step is chosen from them. The rates are evaluated at
+    !> the new positions with the velocity (and density) estimate v_half + dt/2 a^n, and
+    !> kept for the next step. Ghosts, mirrors and the list are current on entry and exit.
+    subroutine verlet_step(sim, env, dt_cap)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        real(wp), intent(in), optional :: dt_cap
+        real(wp) :: dt
+
+        if (sim%rates_stale) call evaluate_rates(sim, env)
+        sim%rates_stale = .false.
+        sim%last_limits = stable_timestep(sim, env)
+        dt = sim%last_limits%dt
+        if (sim%cfg%numerics%fixed_dt > 0.0_wp) dt = sim%cfg%numerics%fixed_dt
+        sim%uncapped_dt = dt
+        if (present(dt_cap)) dt = min(dt, dt_cap)
+        call verlet_drift(sim%p, dt, integrated_density(sim))
+        call refresh_halo(sim, env)
+        call prepare_boundaries(sim, dt)
+        call evaluate_rates(sim, env)
+        call verlet_kick(sim%p, dt, integrated_density(sim))
+        sim%time = sim%time + dt
+        sim%step = sim%step + 1
+        sim%last_limits%dt = dt
+        ! shifting moves the particles after the rates were evaluated
+        call shift(sim, env, dt)
+        if (sim%phys%shifting /= SHIFTING_NONE) sim%rates_stale = .true.
+        call migrate_and_rebuild(sim, env)
+        call remesh_if_due(sim, env)
+        call update_transition_zones(sim, env)
+        call check_health(sim, env)
+    end subroutine verlet_step
 
     !> Half a step from the saved step-start state with the step-start rates.
     subroutine predictor(sim, dt)
@@ -687,7 +750,8 @@ contains
     end function moved_fields
 
     !> Mirrors and the neighbour list for the predicted positions. A particle moves at most
-    !> (vmax + amax dt/2) dt/2 in the half step, after the drift since the list was built;
+    !> (vmax + amax dt/2) dt/2 in the half step (twice that in verlet's full-step drift),
+    !> after the drift since the list was built;
     !> the list stays valid while two particles cannot close in by more than the skin.
     !> Mirrors change with the ghosts, so mirror walls always rebuild.
     subroutine prepare_boundaries(sim, dt)
@@ -696,6 +760,7 @@ contains
         real(wp) :: max_shift
         max_shift = (sim%last_limits%max_speed + 0.5_wp * dt * sim%last_limits%max_accel) &
             * 0.5_wp * dt
+        if (sim%verlet) max_shift = 2.0_wp * max_shift
         if (2.0_wp * (sim%drift + max_shift) >= sim%list_skin .or. uses_mirrors(sim) .or. &
             sim%p%n_total /= sim%p%n_owned + sim%p%n_ghost) then
             call refresh_neighbours(sim)
@@ -864,6 +929,7 @@ contains
         call particles_gather(sim%p, order)
         call simulation_prepare_neighbours(sim, env)
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+        sim%rates_stale = .true.
         call log_remesh(report, mode, dx_old, dx_new, sim%time, sim%step)
     end subroutine remesh_state
 
@@ -945,6 +1011,8 @@ contains
         sim%p%n_total = sim%p%n_owned
         call log_info('remesh: ' // in_path // ' -> ' // out_path)
         call remesh_state(sim, env, mode, .true.)
+        ! a verlet run continues from the rates of the remeshed state (simulation_restart)
+        if (sim%verlet) call evaluate_rates(sim, env)
         call write_checkpoint(env, sim%p, sim%domain, out_path, sim%time, sim%step, &
             sim%cfg%domain%dimension, code_version, input_text, '', stat, errmsg, &
             sim%cfg%domain%dx)

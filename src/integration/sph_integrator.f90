@@ -4,12 +4,21 @@
 !> Both stages are `advance` from the saved start-of-step state with the current rates and
 !> velocity; it is second order in dt. Walls stay in place; their density follows the
 !> continuity equation when it is integrated.
+!>
+!> Velocity Verlet (kick-drift-kick, as LAMMPS' fix sph), one rate evaluation per step, with
+!> the rates F(q^n) kept from the previous step:
+!>   verlet_drift  v_half = v^n + dt/2 a^n (rho, e likewise), x^{n+1} = x^n + dt v_half,
+!>                 and the estimate v = v_half + dt/2 a^n (rho, e likewise) the rates of the
+!>                 new positions are evaluated with
+!>   verlet_kick   v^{n+1} = v_half + dt/2 a^{n+1} (rho, e likewise)
+!> The half-step values are kept in v_old, rho_old, e_old; x_old holds x^n.
 module sph_integrator
     use sph_kinds, only: wp
     use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL
     implicit none
     private
     public :: save_step_start, advance, max_step_displacement
+    public :: verlet_drift, verlet_kick
 
 contains
 
@@ -69,6 +78,62 @@ contains
             end select
         end do
     end subroutine advance_transport
+
+    !> The first half kick and the drift of velocity Verlet (module header), for owned
+    !> particles with the kept rates; then the state estimate for the rate evaluation.
+    !> Walls stay in place; their density follows the continuity equation when it is
+    !> integrated.
+    subroutine verlet_drift(p, dt, integrate_density)
+        type(particles_t), intent(inout) :: p
+        real(wp), intent(in) :: dt
+        logical, intent(in) :: integrate_density
+        real(wp) :: half
+        integer :: i
+        half = 0.5_wp * dt
+        do i = 1, p%n_owned
+            p%x_old(:, i) = p%x(:, i)
+            p%v_old(:, i) = p%v(:, i)
+            p%rho_old(i) = p%rho(i)
+            p%e_old(i) = p%e(i)
+            select case (p%kind(i))
+            case (KIND_FLUID, KIND_VIRTUAL)
+                p%v_old(:, i) = p%v(:, i) + half * p%dvdt(:, i)
+                p%x(:, i) = p%x(:, i) + dt * p%v_old(:, i)
+                p%v(:, i) = p%v_old(:, i) + half * p%dvdt(:, i)
+                if (integrate_density) then
+                    p%rho_old(i) = p%rho(i) + half * p%drhodt(i)
+                    p%rho(i) = p%rho_old(i) + half * p%drhodt(i)
+                end if
+                p%e_old(i) = p%e(i) + half * p%dedt(i)
+                p%e(i) = p%e_old(i) + half * p%dedt(i)
+            case (KIND_WALL)
+                if (integrate_density) then
+                    p%rho_old(i) = p%rho(i) + half * p%drhodt(i)
+                    p%rho(i) = p%rho_old(i) + half * p%drhodt(i)
+                end if
+            end select
+        end do
+    end subroutine verlet_drift
+
+    !> The second half kick of velocity Verlet with the rates of the new positions.
+    subroutine verlet_kick(p, dt, integrate_density)
+        type(particles_t), intent(inout) :: p
+        real(wp), intent(in) :: dt
+        logical, intent(in) :: integrate_density
+        real(wp) :: half
+        integer :: i
+        half = 0.5_wp * dt
+        do i = 1, p%n_owned
+            select case (p%kind(i))
+            case (KIND_FLUID, KIND_VIRTUAL)
+                p%v(:, i) = p%v_old(:, i) + half * p%dvdt(:, i)
+                if (integrate_density) p%rho(i) = p%rho_old(i) + half * p%drhodt(i)
+                p%e(i) = p%e_old(i) + half * p%dedt(i)
+            case (KIND_WALL)
+                if (integrate_density) p%rho(i) = p%rho_old(i) + half * p%drhodt(i)
+            end select
+        end do
+    end subroutine verlet_kick
 
     !> Largest distance an owned particle has moved since save_step_start.
     pure real(wp) function max_step_displacement(p) result(largest)

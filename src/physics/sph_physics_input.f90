@@ -39,6 +39,8 @@ module sph_physics_input
         !> transport-velocity formulation (Adami, Hu & Adams 2013)
         logical :: transport_velocity
         real(wp) :: transport_pressure    !< Pa, p_b of the transport velocity; 0 = rho0 c^2
+        !> 'predictor_corrector' (two rate evaluations per step) or 'verlet' (one)
+        character(len=name_len) :: integrator
     end type numerics_input_t
 
 contains
@@ -124,7 +126,15 @@ contains
         call grp%get_real('transport_pressure', num%transport_pressure, 0.0_wp, min=0.0_wp, &
             unit='Pa', doc="background pressure p_b of the transport velocity; 0 = " // &
             "rho0 c^2 (the equation of state's p0, as Adami et al. use)")
+        call grp%get_string('integrator', num%integrator, 'predictor_corrector', &
+            choices=[character(len=20) :: 'predictor_corrector', 'verlet'], &
+            doc='time integration: midpoint predictor-corrector (two rate evaluations ' // &
+            'per step) or velocity Verlet kick-drift-kick (one, as LAMMPS fix sph)')
         if (num%transport_velocity) call check_transport_velocity(grp, num)
+        if (num%transport_velocity .and. trim(num%integrator) == 'verlet') &
+            call grp%error('integrator', "'verlet' works with transport_velocity = .false. " // &
+                "only (the transport offsets follow the predictor-corrector's stages); use " // &
+                "integrator = 'predictor_corrector'")
         if (num%repulsive_n1 <= num%repulsive_n2) &
             call grp%error('repulsive_n1, repulsive_n2', 'need n1 > n2 >= 1')
         if (trim(num%viscosity_model) == 'strain_rate' .and. &
