@@ -241,7 +241,8 @@ contains
                 deallocate(xn)
                 call refine_positions(dim, n, x, ids, dx, n_new, xn, keys, st, text, &
                     algorithm_box(dx), irregular, solids, box_lo, &
-                    merge(0.0_wp, WALL_BAND, mode == REMESH_SAME))
+                    merge(0.0_wp, WALL_BAND, mode == REMESH_SAME), &
+                    merge(2**dim * n, 0, mode == REMESH_REFINE))
                 report%n_irregular = irregular
                 ! the keys travel in idn's place until fresh_ids turns them into ids
                 deallocate(idn)

@@ -63,6 +63,7 @@ module sph_coarsen
     use sph_kinds, only: wp, i8
     use sph_cell_list, only: neighbour_list_t, build_neighbour_list
     use sph_remesh_images, only: with_periodic_images
+    use sph_key_sort, only: sort_by_keys
     implicit none
     private
     public :: coarsen_select, coarsen_radii, id_hash, KEPT_CLASS, PHASE_CUT
@@ -295,46 +296,17 @@ contains
             astart(n + 1) = m + 1
         end subroutine adjacency_and_parity
 
-        !> Merge sort of indices by (match first, h, id), h compared as unsigned.
+        !> Sort indices by (match first, h, id), h compared as unsigned.
         subroutine sort_order(o)
             integer, intent(inout) :: o(:)
-            integer :: tmp(size(o)), width, lo, mid, hi, a, b, c
-            width = 1
-            do while (width < size(o))
-                lo = 1
-                do while (lo <= size(o))
-                    mid = min(lo + width - 1, size(o))
-                    hi = min(lo + 2 * width - 1, size(o))
-                    a = lo; b = mid + 1; c = lo
-                    do while (c <= hi)
-                        if (b > hi) then
-                            tmp(c) = o(a); a = a + 1
-                        else if (a > mid) then
-                            tmp(c) = o(b); b = b + 1
-                        else if (before(o(b), o(a))) then
-                            tmp(c) = o(b); b = b + 1
-                        else
-                            tmp(c) = o(a); a = a + 1
-                        end if
-                        c = c + 1
-                    end do
-                    lo = hi + 1
-                end do
-                o = tmp
-                width = 2 * width
+            integer(i8), allocatable :: keys(:, :)
+            integer :: c
+            allocate(keys(3, n))
+            do c = 1, n
+                keys(:, c) = [merge(0_i8, 1_i8, match(c)), ieor(h(c), ibset(0_i8, 63)), ids(c)]
             end do
+            call sort_by_keys(keys, o)
         end subroutine sort_order
-
-        logical function before(a, b)
-            integer, intent(in) :: a, b
-            if (match(a) .neqv. match(b)) then
-                before = match(a)
-            else if (h(a) /= h(b)) then
-                before = ult(h(a), h(b))
-            else
-                before = ids(a) < ids(b)
-            end if
-        end function before
 
         subroutine fail(msg)
             character(len=*), intent(in) :: msg
@@ -412,10 +384,4 @@ contains
         end do
         mul64 = assemble(s)
     end function mul64
-
-    !> Unsigned a < b for 64-bit patterns.
-    pure logical function ult(a, b)
-        integer(i8), intent(in) :: a, b
-        ult = ieor(a, ibset(0_i8, 63)) < ieor(b, ibset(0_i8, 63))
-    end function ult
 end module sph_coarsen

@@ -83,6 +83,19 @@
 !> the particles of the first row get a full stencil and masses that match their volume.
 !> Corners (a particle near two solids) are mirrored across each, not across the corner.
 !>
+!> Gap filling (optional n_target, rule 4). A developed flow that has clumped (Morris' cylinder
+!> at 1500 s: pairs 0.1 dx apart, gaps between the clumps wider than EDGE_FACTOR dx) gives no
+!> midpoints across its gaps and no centres in its irregular cells: 2.66 N (L/25) and 2.79 N
+!> (L/50) instead of 4 N. Given n_target, the midpoints and then the quarter points of the old
+!> pairs EDGE_FACTOR dx to FILL_PAIR_MAX = 2 dx apart are candidates (edge keys: such a pair
+!> is no edge; the quarter points marked in key(2)'s top bits, and used only when the
+!> midpoints cannot reach n_target: a regular clumping), not within dx/4 of a solid,
+!> taken in key order when no point lies within r_fill: r_fill the largest (bisection between
+!> MIN_GAP and 1 new spacing) whose count reaches n_target, and if it takes more, the taken
+!> ones with the largest key hashes are dropped down to n_target. Nothing changes where the
+!> construction already reaches n_target (lattices, the developed Poiseuille flow); the
+!> cylinder at 1500 s gets 4.002 N (L/25) and 4.0005 N (L/50), minimum pair 0.5 new spacings.
+!>
 !> Periodic: with box (lengths of the axes, domain [0, box)) neighbours are searched through
 !> periodic images and new positions wrapped into the box; the box must exceed 4 EDGE_FACTOR
 !> dx per axis so that no 4-cycle wraps around it. Without box the set is open and particles
@@ -91,6 +104,8 @@ module sph_refine
     use sph_kinds, only: wp, i8
     use sph_cell_list, only: neighbour_list_t, build_neighbour_list
     use sph_remesh_images, only: with_periodic_images
+    use sph_coarsen, only: id_hash
+    use sph_key_sort, only: sort_by_keys
     use sph_solids, only: solids_t, solid_distance, solid_normal, solid_reflect
     implicit none
     private
@@ -105,6 +120,11 @@ module sph_refine
     !> smallest distance (in new spacings) a constructed or moved point keeps from the points
     !> kept before it (thinning, see the header)
     real(wp), parameter :: MIN_GAP = 0.5_wp
+    !> gap filling (header, rule 4): the farthest old pairs whose midpoints are candidates
+    !> (in old spacings), and the bisection's steps
+    real(wp), parameter :: FILL_PAIR_MAX = 2.0_wp
+    real(wp), parameter :: FILL_FRACTION(0:2) = [0.5_wp, 0.25_wp, 0.75_wp]
+    integer, parameter :: FILL_STEPS = 20
 
 contains
 
@@ -114,7 +134,7 @@ contains
     !> band of band_width new spacings (default WALL_BAND); band_width = 0 (same-level
     !> remeshing) moves nothing and drops the new row on the surface instead (d < dx/4).
     subroutine refine_positions(dim, n, x, ids, dx, n_new, x_new, key, stat, errmsg, box, &
-            n_irregular, solids, origin, band_width)
+            n_irregular, solids, origin, band_width, n_target)
         integer, intent(in) :: dim, n
         real(wp), intent(in) :: x(:, :), dx
         integer(i8), intent(in) :: ids(:)
@@ -127,6 +147,7 @@ contains
         integer, intent(out), optional :: n_irregular
         type(solids_t), intent(in), optional :: solids
         real(wp), intent(in), optional :: origin(3), band_width
+        integer, intent(in), optional :: n_target
         real(wp), allocatable :: xa(:, :)
         integer(i8), allocatable :: ida(:)
         logical, allocatable :: keep(:), moved(:)
@@ -233,8 +254,127 @@ contains
             moved = .false.
         end if
         call thin()
+        if (present(n_target)) then
+            if (n_new < n_target) call fill_gaps(n_target)
+        end if
 
     contains
+
+        !> Gap filling (header, rule 4): midpoints (then, if needed, quarter points) of the
+        !> old pairs EDGE_FACTOR dx to FILL_PAIR_MAX dx apart, in key order, each kept when no
+        !> point lies within r_fill; r_fill the largest (bisection from MIN_GAP dx/2 up to
+        !> dx/2) whose count reaches want.
+        subroutine fill_gaps(want)
+            integer, intent(in) :: want
+            real(wp), allocatable :: xo(:, :), yc(:, :), xall(:, :), xi(:, :)
+            integer(i8), allocatable :: kc(:, :), hk(:, :)
+            integer, allocatable :: oo(:), orig(:), order(:), idx(:), ord(:)
+            logical, allocatable :: take(:), best(:), allowed(:)
+            type(neighbour_list_t) :: nl
+            logical :: periodic
+            real(wp) :: bx(3), r2, lo, hi, r_fill, dd(3)
+            integer :: no, nc, i, j, t, ntot, step, n_best, got, s, f
+            periodic = present(box)
+            bx = 0.0_wp
+            if (periodic) bx = box
+            ! candidates: midpoints of the old pairs in [EDGE_FACTOR, FILL_PAIR_MAX) dx
+            call with_periodic_images(dim, n, x, periodic, bx, FILL_PAIR_MAX * dx, xo, oo, no)
+            call build_neighbour_list(xo, no, n, dim, FILL_PAIR_MAX * dx, nl)
+            allocate(yc(3, max(3 * nl%n_pairs, 1)), kc(2, max(3 * nl%n_pairs, 1)))
+            nc = 0
+            do i = 1, n
+                do t = nl%start(i), nl%start(i + 1) - 1
+                    j = oo(nl%index(t))
+                    if (ids(j) <= ids(i)) cycle
+                    dd = xo(:, nl%index(t)) - x(:, i)
+                    dd(dim + 1:) = 0.0_wp
+                    r2 = sum(dd * dd)
+                    if (r2 < (EDGE_FACTOR * dx)**2) cycle
+                    ! the midpoint, then the quarter points (a gap of 1.2-2 dx holds up to
+                    ! three new spacings); edge keys, the pair being no edge (too far
+                    ! apart), with the quarter points told apart in key(2)'s top bits
+                    do f = 0, 2
+                        nc = nc + 1
+                        yc(:, nc) = x(:, i) + FILL_FRACTION(f) * dd
+                        if (periodic) yc(1:dim, nc) = yc(1:dim, nc) &
+                            - bx(1:dim) * floor(yc(1:dim, nc) / bx(1:dim))
+                        kc(:, nc) = [4_i8 * ids(i) + 1_i8, ids(j) + int(f, i8) * 2_i8**61]
+                    end do
+                end do
+            end do
+            if (nc == 0) return
+            ! not inside or on a solid (the wall rule's row on the surface is its own)
+            allocate(take(nc))
+            take = .true.
+            if (ns > 0) then
+                do i = 1, nc
+                    do s = 1, ns
+                        if (solid_distance(solids%list(s), yc(:, i) + org) < 0.25_wp * dx) &
+                            take(i) = .false.
+                    end do
+                end do
+            end if
+            yc = yc(:, pack([(i, i = 1, nc)], take))
+            kc = kc(:, pack([(i, i = 1, nc)], take))
+            nc = size(kc, 2)
+            if (nc == 0) return
+            ! key order (a pair can appear twice through images of a small box: once kept)
+            allocate(order(nc))
+            order = [(i, i = 1, nc)]
+            call sort_by_keys(kc, order)
+            yc = yc(:, order)
+            kc = kc(:, order)
+            allocate(xall(3, n_new + nc))
+            xall(:, 1:n_new) = x_new(:, 1:n_new)
+            xall(:, n_new + 1:) = yc(:, 1:nc)
+            call with_periodic_images(dim, n_new + nc, xall, periodic, bx, 0.5_wp * dx, xi, &
+                orig, ntot)
+            call build_neighbour_list(xi, ntot, n_new + nc, dim, 0.5_wp * dx, nl)
+            ! the midpoints alone when they reach want (they keep more of the flow's own
+            ! spacing), with the quarter points otherwise
+            allocate(allowed(nc))
+            allowed = kc(2, 1:nc) < 2_i8**61
+            lo = MIN_GAP * 0.5_wp * dx
+            hi = 0.5_wp * dx
+            call fill_greedy(dim, n_new, nc, xall, xi, orig, nl, allowed, lo, best, n_best)
+            if (n_best < want) then
+                allowed = .true.
+                call fill_greedy(dim, n_new, nc, xall, xi, orig, nl, allowed, lo, best, n_best)
+            end if
+            if (n_best >= want) then
+                do step = 1, FILL_STEPS
+                    r_fill = 0.5_wp * (lo + hi)
+                    call fill_greedy(dim, n_new, nc, xall, xi, orig, nl, allowed, r_fill, &
+                        take, got)
+                    if (got >= want) then
+                        lo = r_fill
+                        best = take
+                        n_best = got
+                    else
+                        hi = r_fill
+                    end if
+                end do
+            end if
+            ! r_fill can take many at once (a regular clumping): keep want, chosen by a hash
+            ! of the keys so that no region is preferred
+            if (n_best > want) then
+                idx = pack([(i, i = 1, nc)], best)
+                allocate(hk(2, size(idx)), ord(size(idx)))
+                do i = 1, size(idx)
+                    hk(:, i) = [id_hash(ieor(kc(1, idx(i)), id_hash(kc(2, idx(i))))), &
+                        int(idx(i), i8)]
+                    ord(i) = i
+                end do
+                call sort_by_keys(hk, ord)
+                best(idx(ord(want - n_new + 1:))) = .false.
+            end if
+            n_best = n_new + count(best)
+            x_new = reshape([x_new(:, 1:n_new), pack(yc(:, 1:nc), spread(best, 1, 3))], &
+                [3, n_best])
+            key = reshape([key(:, 1:n_new), pack(kc(:, 1:nc), spread(best, 1, 2))], [2, n_best])
+            n_new = n_best
+
+        end subroutine fill_gaps
 
         !> Thinning (header, rule 3): a constructed (midpoint, centre) or moved point is dropped
         !> when a point kept before it lies within MIN_GAP dx/2. Old positions that were not
@@ -299,6 +439,43 @@ contains
             key_before = ka(1) < kb(1) .or. (ka(1) == kb(1) .and. ka(2) < kb(2))
         end function key_before
     end subroutine refine_positions
+
+    !> The gap filling's greedy pass (refine_positions, fill_gaps): the candidates
+    !> xall(:, n_old + 1:n_old + nc) that are allowed, in order, each taken when no point (the
+    !> n_old refined points or a candidate taken before) lies within r; xi, orig, nl: the points with their
+    !> periodic images and the neighbours of each point. n_all = n_old + the taken ones.
+    subroutine fill_greedy(dim, n_old, nc, xall, xi, orig, nl, allowed, r, took, n_all)
+        integer, intent(in) :: dim, n_old, nc, orig(:)
+        real(wp), intent(in) :: xall(:, :), xi(:, :), r
+        type(neighbour_list_t), intent(in) :: nl
+        logical, intent(in) :: allowed(:)
+        logical, allocatable, intent(inout) :: took(:)
+        integer, intent(out) :: n_all
+        integer :: c, u, w
+        real(wp) :: dd(3)
+        logical :: free
+        if (.not. allocated(took)) allocate(took(nc))
+        took = .false.
+        do c = 1, nc
+            if (.not. allowed(c)) cycle
+            free = .true.
+            do u = nl%start(n_old + c), nl%start(n_old + c + 1) - 1
+                w = orig(nl%index(u))
+                if (w == n_old + c) cycle
+                if (w > n_old) then
+                    if (.not. took(w - n_old)) cycle
+                end if
+                dd = xi(:, nl%index(u)) - xall(:, n_old + c)
+                dd(dim + 1:) = 0.0_wp
+                if (sum(dd * dd) < r * r) then
+                    free = .false.
+                    exit
+                end if
+            end do
+            took(c) = free
+        end do
+        n_all = n_old + count(took)
+    end subroutine fill_greedy
 
     !> Wall distance after the wall rule: d in [0, band) -> dx/4 + d (band - dx/4) / band
     !> (dx the OLD spacing: the first new layer at half a new spacing), identity beyond.
