@@ -438,6 +438,80 @@ def case_cylinder_remesh(runner, args):
     return [block]
 
 
+def disorder_checks(mode, before, after, new_dx):
+    """Issue 10's "disorder kept" checks of one offline remesh to spacing new_dx: (label,
+    value, held) for the count, the mean nearest distance, the minimum pair and the CoV of the
+    nearest distances."""
+    import sph_disorder
+    dim = before["dimension"]
+    factor = 2 ** dim if mode == "refine" else 1.0 / 2 ** dim
+    count_tol = 0.02 if mode == "refine" else 0.05
+    mean_target = 0.5 if mode == "refine" else 2.0
+    r = sph_disorder.ratios(before, after)
+    cov_ok = (after["cov_nn"] <= 0.05 if before["cov_nn"] < 0.02
+              else abs(r["cov_nn"] - 1.0) <= 0.25)
+    return [
+        ("count ratio", f"{r['count']:.4g}", abs(r["count"] / factor - 1.0) <= count_tol),
+        ("mean ratio", f"{r['mean_nn']:.4g}", abs(r["mean_nn"] / mean_target - 1.0) <= 0.05),
+        ("min pair / new spacing", f"{after['min_pair'] / new_dx:.3g}",
+         after["min_pair"] >= 0.4 * new_dx),
+        ("CoV", f"{before['cov_nn']:.3f} -> {after['cov_nn']:.3f}", cov_ok)]
+
+
+def case_remesh_disorder(runner, args):
+    """Issue 10's "disorder kept": offline refine and coarsen of the developed Poiseuille flow
+    (L/40 at 2 s) and of the cylinder flow (L/25, L/50 at 0, 1500 and 6000 s), the count,
+    mean spacing, minimum pair and CoV checks."""
+    import sph_disorder
+    block = Block("remesh_disorder")
+    sources = [("Poiseuille L/40", runner.run("poiseuille_L40", "poiseuille.nml", {
+                   "run": {"t_end": 2.0}, "domain": {"dx": 1.0e-3 / 40},
+                   "output": {"output_interval": 0.0, "output_times": list(CHANNEL_TIMES)}}),
+                (2.0,)),
+               ("cylinder L/25", runner.run("cylinder_L25", "cylinder.nml",
+                                            {"domain": {"dx": 0.1 / 25}}), (0.0, 1500.0, 6000.0)),
+               ("cylinder L/50", runner.run("cylinder_L50", "cylinder.nml",
+                                            {"domain": {"dx": 0.1 / 50}}), (0.0, 1500.0, 6000.0))]
+    block.lines += ["| flow | t [s] | remesh | particles | count ratio | mean ratio | "
+                    "min pair / new spacing | CoV before -> after |",
+                    "|---|---|---|---|---|---|---|---|"]
+    scratch = os.path.join(runner.work, "remesh_disorder")
+    os.makedirs(scratch, exist_ok=True)
+    for label, out, times in sources:
+        if out is None:
+            block.failed.append(f"remesh_disorder: the {label} run failed")
+            continue
+        for snap, t in zip(snapshots_at(out, times), times):
+            before = sph_disorder.disorder(snap)
+            for mode in ("refine", "coarsen"):
+                target = os.path.join(scratch, f"{label.replace(' ', '_').replace('/', '')}"
+                                               f"_{t:g}_{mode}.h5")
+                cmd = ["mpirun", "-np", str(runner.nranks), runner.binary, "--remesh", mode,
+                       snap, target]
+                status = subprocess.call(cmd, stdout=subprocess.DEVNULL,
+                                         stderr=subprocess.STDOUT)
+                if status != 0:
+                    block.failed.append(f"remesh_disorder: {label} {t:g} s {mode} failed")
+                    continue
+                after = sph_disorder.disorder(target)
+                dx = sph_snapshot.geometry(sph_snapshot.load(snap))["dx"]
+                checks = disorder_checks(mode, before, after,
+                                         dx * (0.5 if mode == "refine" else 2.0))
+                for what, value, held in checks:
+                    if not held:
+                        block.failed.append(f"remesh_disorder: {label} at {t:g} s, {mode}: "
+                                            f"{what} {value} outside issue 10's limit")
+                cells = [f"{value}" + ("" if held else " **NO**") for _, value, held in checks]
+                block.lines.append(f"| {label} | {t:g} | {mode} | {before['count']} -> "
+                                   f"{after['count']} | " + " | ".join(cells) + " |")
+    block.lines += ["", "Limits (issue 10): refine 2^dim N within 2 %, mean nearest distance "
+                    "half the original's within 5 %; coarsen N/2^dim within 5 %, mean twice "
+                    "within 5 %; both: no pair closer than 0.4 new spacings, CoV within 25 % "
+                    "of the original's (at most 0.05 where the original's is below 0.02). "
+                    "**NO** marks a limit missed."]
+    return [block]
+
+
 def case_multires(runner, args):
     """Multi-resolution Couette and Poiseuille (L/20 channel, L/40 band): error per level
     against the uniform runs in the same region, and the density jump at the interfaces."""
@@ -527,6 +601,7 @@ CASES = {
     "cavity_wcsph": (case_cavity_wcsph, False),
     "cylinder": (case_cylinder, False),
     "cylinder_remesh": (case_cylinder_remesh, False),
+    "remesh_disorder": (case_remesh_disorder, False),
     "cavity_re1000": (case_cavity_re1000, True),
 }
 

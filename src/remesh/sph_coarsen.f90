@@ -53,8 +53,11 @@
 !> nothing is added for r_fill above that; the gaps of a disordered set get particles at
 !> r_fill (0.70-0.72 of the new spacing on the cylinder flow), so the kept set is spread
 !> evenly at the count asked for, and no two kept particles are closer than R_FILL_MIN dx =
-!> 0.4 of the new spacing. If even r_fill = R_FILL_MIN dx does not reach n_target (too few
-!> candidates), that set is kept.
+!> 0.4 of the new spacing. A radius that frees many at once (the diagonals of a lattice
+!> whose parity is inconsistent, as Morris' L/25 cell with its 25 sites per periodic axis)
+!> is trimmed back to n_target, the added particles with the largest id hashes dropped. If
+!> even r_fill = R_FILL_MIN dx does not reach n_target (too few candidates), that set is
+!> kept.
 !>
 !> Periodic: with box (lengths of the axes, domain [0, box)) neighbours are found through
 !> periodic images (minimum image); the box must exceed 2 r_row per axis. Ids must be >= 0 and
@@ -196,6 +199,8 @@ contains
             logical, allocatable :: keep(:), best(:)
             real(wp) :: lo, hi, r_fill
             integer :: step, n_fill
+            integer, allocatable :: added(:), ord(:)
+            integer(i8), allocatable :: hk(:, :)
             allocate(best(n))
             lo = R_FILL_MIN * dx
             hi = r_conflict
@@ -212,6 +217,19 @@ contains
                         hi = r_fill
                     end if
                 end do
+            end if
+            ! r_fill can add many at once (a lattice whose parity is inconsistent: the
+            ! diagonals come free together): keep want, dropping the added particles with
+            ! the largest id hashes, so that no region is preferred
+            if (count(best) > want) then
+                added = pack([(i, i = 1, n)], best .and. tag(1:n) /= KEPT_CLASS)
+                allocate(hk(2, size(added)), ord(size(added)))
+                do i = 1, size(added)
+                    hk(:, i) = [ieor(h(added(i)), ibset(0_i8, 63)), ids(added(i))]
+                    ord(i) = i
+                end do
+                call sort_by_keys(hk, ord)
+                best(added(ord(size(added) - (count(best) - want) + 1:))) = .false.
             end if
             where (best .and. tag(1:n) /= KEPT_CLASS) tag(1:n) = KEPT_CLASS
             n_kept = count(tag(1:n) == KEPT_CLASS)
