@@ -16,6 +16,7 @@ module sph_command_line
 
 contains
 
+    !> Parse the program's arguments into opts; stat /= 0 and errmsg on a bad command line.
     subroutine parse_command_line(opts, stat, errmsg)
         type(options_t), intent(out) :: opts
         integer, intent(out) :: stat
@@ -106,6 +107,7 @@ contains
         if (length > 0) call get_command_argument(i, arg)
     end function argument
 
+    !> The usage message printed for --help and after a bad command line.
     function usage_text() result(text)
         character(len=:), allocatable :: text
         character(len=*), parameter :: nl = new_line('a')

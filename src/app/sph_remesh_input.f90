@@ -15,6 +15,7 @@ module sph_remesh_input
 
 contains
 
+    !> Read the &remesh group (mode; every_steps or every_time).
     subroutine read_remesh_input(grp, rem)
         type(nml_group_t), intent(inout) :: grp
         type(remesh_input_t), intent(out) :: rem

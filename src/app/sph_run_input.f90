@@ -28,6 +28,8 @@ module sph_run_input
 
 contains
 
+    !> Read the &run group (case name, end time, step limit, log interval, analytic reference,
+    !> wall-time limit).
     subroutine read_run_input(grp, run)
         type(nml_group_t), intent(inout) :: grp
         type(run_input_t), intent(out) :: run

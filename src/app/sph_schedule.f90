@@ -112,6 +112,7 @@ contains
         dt_cap = min(sched%next_output, sched%t_end) - time
     end function schedule_dt_cap
 
+    !> Whether the run has reached t_end (to a relative tolerance) or its step limit.
     pure logical function run_finished(sched, time, step)
         type(schedule_t), intent(in) :: sched
         real(wp), intent(in) :: time
@@ -210,6 +211,7 @@ contains
         if (len(sched%stopped_by) > 0) sched%finished = .true.
     end subroutine check_stop_request
 
+    !> The column header of the progress lines (rank 0).
     subroutine log_progress_header()
         call log_info('     step     time [s]       dt [s]   max |v| [m/s]  ' // &
             'rho min..max [kg/m^3]        wall/step [s]  remaining [s]')

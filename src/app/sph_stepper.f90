@@ -390,6 +390,7 @@ contains
             sim%list_skin)
     end function halo_reach
 
+    !> Forget the particles of a simulation (its arrays stay allocated for reuse).
     subroutine simulation_free(sim)
         type(simulation_t), intent(inout) :: sim
         sim%p%n_owned = 0
@@ -1022,7 +1023,7 @@ contains
             '--restart ' // out_path // ' and &domain dx = ' // trim(adjustl(number)))
     end subroutine simulation_remesh_file
 
-    !> Multi-resolution: conversions and new virtual particles in the transition zones
+    !> Multi-resolution steps: conversions and new virtual particles in the transition zones
     !> (sph_transition_driver), then the halo and the neighbour list for the new set. The
     !> zones are made anew whenever the Verlet list is (migrate_and_rebuild: particles have
     !> moved a twentieth of a smoothing length since the last time); in between, the

@@ -1,4 +1,4 @@
-!> Solids: the regions of space that are not fluid, each able to say at any point its signed
+!> Solids are the regions of space that are not fluid, each able to say at any point its signed
 !> distance (positive in the fluid, negative inside the solid), the unit normal of its surface
 !> pointing into the fluid, and its velocity. Wall particles, mirror images and Morris' wall
 !> normals and distances are all made from these answers, so a new shape (a circle, a sphere,

@@ -17,6 +17,8 @@ module sph_analytic
 
 contains
 
+    !> Couette flow started from rest (module header): velocity at height y and time t between
+    !> a wall at rest and one moving at wall_speed (m/s), `width` apart.
     pure elemental real(wp) function couette_velocity(y, t, wall_speed, width, nu)
         real(wp), intent(in) :: y, t, wall_speed, width, nu
         real(wp) :: decay, term
@@ -36,6 +38,8 @@ contains
         end do
     end function couette_velocity
 
+    !> Poiseuille flow started from rest (module header): velocity at height y and time t
+    !> driven by the body force `force` (m/s^2) between walls `width` apart.
     pure elemental real(wp) function poiseuille_velocity(y, t, force, width, nu)
         real(wp), intent(in) :: y, t, force, width, nu
         real(wp) :: decay, k

@@ -63,6 +63,8 @@ contains
         is_periodic = trim(self%boundary(2*axis - 1)) == 'periodic'
     end function is_periodic
 
+    !> Read the &domain group (dimension, box, boundaries, dx) and check the box holds whole
+    !> lattice cells and a kernel support.
     subroutine read_domain_input(grp, dom)
         type(nml_group_t), intent(inout) :: grp
         type(domain_input_t), intent(out) :: dom

@@ -20,6 +20,8 @@ module sph_initial
 
 contains
 
+    !> The initial particles: this rank's share of the fluid lattice (bodies and walls left
+    !> out) and the wall particles of every solid, with masses rho0 dx^dim and ids by site.
     subroutine create_lattice_particles(cfg, phys, solids, domain, p)
         type(config_t), intent(in) :: cfg
         type(physics_t), intent(in) :: phys

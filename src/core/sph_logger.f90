@@ -20,6 +20,7 @@ module sph_logger
 
 contains
 
+    !> Set this process's rank (only rank 0 writes) and, optionally, the verbosity.
     subroutine logger_init(rank, verbosity)
         integer, intent(in) :: rank
         integer, intent(in), optional :: verbosity
@@ -27,10 +28,12 @@ contains
         if (present(verbosity)) level = verbosity
     end subroutine logger_init
 
+    !> Whether this process writes the log (rank 0).
     logical function logger_is_root()
         logger_is_root = my_rank == 0
     end function logger_is_root
 
+    !> Write one line of the log (rank 0, verbosity info and above).
     subroutine log_info(message)
         character(len=*), intent(in) :: message
         if (my_rank == 0 .and. level >= VERBOSITY_INFO) then
@@ -39,6 +42,7 @@ contains
         end if
     end subroutine log_info
 
+    !> Write one debug line (rank 0, verbosity debug).
     subroutine log_debug(message)
         character(len=*), intent(in) :: message
         if (my_rank == 0 .and. level >= VERBOSITY_DEBUG) write(output_unit, &
@@ -70,6 +74,7 @@ contains
             ' (further occurrences counted, see summary)'
     end subroutine log_warn_counted
 
+    !> At the end of a run: how many times each repeated warning was given.
     subroutine log_warning_summary()
         integer :: k
         character(len=16) :: text

@@ -9,6 +9,8 @@ module sph_input
 
 contains
 
+    !> Read the namelist file on rank 0, share its text, parse and check every group on all
+    !> ranks; stat /= 0 and one message per bad key otherwise.
     subroutine load_config(env, filename, cfg, stat, errmsg)
         type(mpi_env_t), intent(in) :: env
         character(len=*), intent(in) :: filename

@@ -22,6 +22,7 @@ module sph_integrator
 
 contains
 
+    !> Keep the step-start state (x, v, rho, e) of the owned particles for the stages.
     subroutine save_step_start(p)
         type(particles_t), intent(inout) :: p
         integer :: n

@@ -1,4 +1,4 @@
-!> Checkpoints: a snapshot file plus what a bit-for-bit continuation needs (each particle's
+!> A checkpoint is a snapshot file plus what a bit-for-bit continuation needs (each particle's
 !> wall geometry, every rank's row count and the ORB tree, the snapshot index of the run),
 !> written as safely as snapshots (temporary name, write_complete last, rename). On the same
 !> rank count each rank gets back exactly its particles in their order and the same
@@ -25,6 +25,7 @@ module sph_checkpoint
 
 contains
 
+    !> <output_dir>/<case>_checkpoint_<step, 6 digits or more>.h5
     function checkpoint_filename(output_dir, case_name, step) result(path)
         character(len=*), intent(in) :: output_dir, case_name
         integer(i8), intent(in) :: step

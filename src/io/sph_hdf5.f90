@@ -602,6 +602,7 @@ contains
         end if
     end function object_path
 
+    !> Whether the attribute `name` exists on the file's root group or on the object `at`.
     logical function h5_attribute_exists(file, name, at)
         type(h5_file_t), intent(in) :: file
         character(len=*), intent(in) :: name

@@ -14,6 +14,7 @@ module sph_restart_input
 
 contains
 
+    !> Read the &restart group (checkpoint intervals in steps and wall seconds, how many kept).
     subroutine read_restart_input(grp, rst)
         type(nml_group_t), intent(inout) :: grp
         type(restart_input_t), intent(out) :: rst

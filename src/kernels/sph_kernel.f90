@@ -33,6 +33,7 @@ module sph_kernel
 
 contains
 
+    !> A kernel of the given id in dim dimensions with smoothing length h (normalisation cached).
     function kernel_create(id, dim, h) result(k)
         integer, intent(in) :: id, dim
         real(wp), intent(in) :: h
@@ -57,6 +58,7 @@ contains
         end select
     end function kernel_id_from_name
 
+    !> The input name of a kernel id ('cubic', 'quintic', 'wendland_c2').
     function kernel_name(id) result(name)
         integer, intent(in) :: id
         character(len=:), allocatable :: name

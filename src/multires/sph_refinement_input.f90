@@ -43,6 +43,7 @@ module sph_refinement_input
 
 contains
 
+    !> Read the &refinement group (transition-zone width, virtual particles in snapshots).
     subroutine read_refinement_input(grp, ref)
         type(nml_group_t), intent(inout) :: grp
         type(refinement_input_t), intent(out) :: ref

@@ -298,6 +298,8 @@ contains
             halo%recv_buf, halo%recv_ibuf)
     end subroutine wait_and_unpack
 
+    !> Build the halo from scratch (who sends which particles to whom) and receive the ghosts:
+    !> halo_build_start, then the wait.
     subroutine halo_build(halo, domain, env, p)
         type(halo_t), intent(inout) :: halo
         type(domain_t), intent(in) :: domain
@@ -319,12 +321,14 @@ contains
         call post_data(halo, env, p, mask)
     end subroutine halo_refresh_start
 
+    !> Complete a refresh started by halo_refresh_start: wait and unpack the ghosts' fields.
     subroutine halo_refresh_finish(halo, p)
         type(halo_t), intent(inout) :: halo
         type(particles_t), intent(inout) :: p
         call wait_and_unpack(halo, p)
     end subroutine halo_refresh_finish
 
+    !> Send the owners' current values of the fields in `mask` (HALO_* bits) to their ghosts.
     subroutine halo_refresh(halo, env, p, mask)
         type(halo_t), intent(inout) :: halo
         type(mpi_env_t), intent(in) :: env

@@ -90,6 +90,7 @@ contains
         call check_mpi(ierr, 'mpi_env size')
     end subroutine fill_rank
 
+    !> Free the communicator if the environment owns it (a split), not MPI_COMM_WORLD.
     subroutine mpi_env_free(env)
         type(mpi_env_t), intent(inout) :: env
         integer :: ierr

@@ -13,6 +13,7 @@ module sph_parallel_input
 
 contains
 
+    !> Read the &parallel group (rebalancing threshold and interval).
     subroutine read_parallel_input(grp, par)
         type(nml_group_t), intent(inout) :: grp
         type(parallel_input_t), intent(out) :: par

@@ -321,6 +321,7 @@ contains
         end do
     end subroutine pack_widths
 
+    !> An empty particle table for dim dimensions with room for `capacity` particles.
     subroutine particles_init(p, capacity, dim)
         type(particles_t), intent(out) :: p
         integer, intent(in) :: capacity, dim
@@ -332,6 +333,7 @@ contains
         p%capacity = op%capacity
     end subroutine particles_init
 
+    !> Release every array of the table (it can be initialised again).
     subroutine particles_free(p)
         type(particles_t), intent(inout) :: p
         type(particles_t) :: empty

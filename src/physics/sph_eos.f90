@@ -13,6 +13,7 @@ module sph_eos
 
 contains
 
+    !> The EOS_* id of an &fluid eos name (0 when unknown).
     integer function eos_id_from_name(name)
         character(len=*), intent(in) :: name
         select case (trim(name))
@@ -23,6 +24,8 @@ contains
         end select
     end function eos_id_from_name
 
+    !> Pressure (Pa) of density rho (kg/m^3) by the equation of state `id`, with the rest
+    !> density rho0, sound speed c (m/s) and Tait exponent gamma.
     pure elemental real(wp) function eos_pressure(id, rho, rho0, c, gamma)
         integer, intent(in) :: id
         real(wp), intent(in) :: rho, rho0, c, gamma

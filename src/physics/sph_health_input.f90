@@ -13,6 +13,7 @@ module sph_health_input
 
 contains
 
+    !> Read the &health group (the density band and the time-step floor that stop a run).
     subroutine read_health_input(grp, health)
         type(nml_group_t), intent(inout) :: grp
         type(health_input_t), intent(out) :: health

@@ -45,6 +45,7 @@ module sph_physics_input
 
 contains
 
+    !> Read the &fluid group (rest density, viscosity, body force, equation of state, scales).
     subroutine read_fluid_input(grp, fl)
         type(nml_group_t), intent(inout) :: grp
         type(fluid_input_t), intent(out) :: fl
@@ -72,6 +73,7 @@ contains
             doc='L for the criterion; 0 = narrowest gap or smallest box side')
     end subroutine read_fluid_input
 
+    !> Read the &numerics group (kernel, models, time-step factors, shifting, integrator, ...).
     subroutine read_numerics_input(grp, num)
         type(nml_group_t), intent(inout) :: grp
         type(numerics_input_t), intent(out) :: num

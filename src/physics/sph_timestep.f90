@@ -19,6 +19,8 @@ module sph_timestep
 
 contains
 
+    !> The stable time step and its three limits (Morris et al. 1997): CFL h/(c + vmax),
+    !> viscous h^2/nu and force sqrt(h/amax), each with its safety factor.
     pure function timestep_limits(h, c, max_speed, nu, max_accel, cfl, viscous_safety, &
                                   force_safety) result(lim)
         real(wp), intent(in) :: h, c, max_speed, nu, max_accel, cfl, viscous_safety, force_safety

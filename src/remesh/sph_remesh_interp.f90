@@ -54,6 +54,8 @@ module sph_remesh_interp
 
 contains
 
+    !> Hand the fields of the old particles on to the new positions (module header): masses,
+    !> energies and volumes conservatively, velocities by a corrected interpolant.
     subroutine remesh_transfer(dim, h, n_old, x_old, m_old, v_old, rho_old, e_old, &
             n_new, x_new, m_new, v_new, rho_new, e_new, stat, errmsg, n_mass_fallback, &
             n_velocity_fallback)
