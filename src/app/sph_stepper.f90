@@ -9,7 +9,7 @@ module sph_stepper
     use sph_config, only: config_t, config_to_text
     use sph_mpi_env, only: mpi_env_t, global_sum, global_max, global_min, broadcast_text
     use sph_errors, only: fatal_collective
-    use sph_logger, only: log_info
+    use sph_logger, only: log_info, log_warn_counted
     use sph_particles, only: particles_t, particles_init, particles_gather, KIND_FLUID, &
         KIND_VIRTUAL, &
         HALO_MOVE, HALO_TRANSPORT, HALO_DENSITY, HALO_STRAIN, HALO_GHOST, pack_widths, &
@@ -30,6 +30,7 @@ module sph_stepper
         compute_rates, extrapolate_wall_density, local_max_speed, local_max_acceleration
     use sph_shifting, only: shifting_diffusion, shift_particles
     use sph_timestep, only: timestep_limits_t, timestep_limits
+    use sph_disorder_measure, only: nearest_distance_sums, disorder_from_sums
     use sph_integrator, only: save_step_start, advance, max_step_displacement, verlet_drift, &
         verlet_kick
     use sph_initial, only: create_lattice_particles
@@ -840,6 +841,8 @@ contains
         type(mpi_env_t), intent(in) :: env
         logical :: due
         integer :: mode
+        real(wp) :: disorder
+        character(len=120) :: text
         mode = remesh_mode_code(sim%cfg%remesh%mode)
         if (mode == REMESH_NONE) return
         due = .false.
@@ -851,7 +854,31 @@ contains
                 sim%next_remesh_time = sim%next_remesh_time + sim%cfg%remesh%every_time
             end do
         end if
-        if (due) call simulation_remesh(sim, env, mode)
+        if (.not. due .and. sim%cfg%remesh%disorder_threshold > 0.0_wp) then
+            if (mod(sim%step, int(sim%cfg%remesh%disorder_check_steps, i8)) == 0) then
+                disorder = disorder_from_sums(global_sum(env, &
+                    nearest_distance_sums(sim%p, sim%nl)))
+                due = disorder > sim%cfg%remesh%disorder_threshold
+                if (due) then
+                    write(text, '(a, f8.5, a, f8.5)') 'remesh: disorder (CoV of the ' // &
+                        'nearest-neighbour distances) ', disorder, ' > threshold ', &
+                        sim%cfg%remesh%disorder_threshold
+                    call log_info(text)
+                end if
+            end if
+        end if
+        if (.not. due) return
+        call simulation_remesh(sim, env, mode)
+        if (sim%cfg%remesh%disorder_threshold <= 0.0_wp) return
+        ! a fresh set has some disorder of its own (0.13-0.17 on the cylinder flow): a
+        ! threshold below it would remesh at every check
+        disorder = disorder_from_sums(global_sum(env, nearest_distance_sums(sim%p, sim%nl)))
+        write(text, '(a, f8.5)') 'remesh: disorder after the remesh ', disorder
+        call log_info(text)
+        if (disorder > sim%cfg%remesh%disorder_threshold) call log_warn_counted( &
+            'disorder_threshold', '&remesh disorder_threshold is below the disorder of a ' // &
+            'freshly remeshed set: every check will remesh; raise it above the value logged ' // &
+            "after the remesh ('remesh: disorder after the remesh')")
     end subroutine remesh_if_due
 
     !> Remesh every fluid particle (sph_remesh_driver: refine, coarsen or same level) and
