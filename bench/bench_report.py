@@ -169,7 +169,7 @@ def plot(rows, path):
         bottom = [b + v for b, v in zip(bottom, values)]
     right.set_xlabel('share of the step loop (%)')
     right.invert_yaxis()
-    right.legend(fontsize=8, ncol=3, loc='lower right')
+    right.legend(fontsize=8, ncol=6, loc='upper center', bbox_to_anchor=(0.5, -0.1))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
