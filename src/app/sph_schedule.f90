@@ -14,7 +14,9 @@ module sph_schedule
     use sph_reference, only: steady_after
     use sph_stepper, only: simulation_t, simulation_write_snapshot, &
         simulation_write_checkpoint, simulation_analytic_error, fluid_density_range, &
-        simulation_write_forces, simulation_log_forces, simulation_log_levels
+        simulation_write_forces, simulation_log_forces, simulation_log_levels, &
+        simulation_neighbours_per_particle
+    use sph_step_timers, only: timers_split_line
     use sph_signals, only: signal_received
     implicit none
     private
@@ -257,6 +259,7 @@ contains
             ' steps to t = ', sim%time, ' s in ', wall_now - sched%wall_start, ' s wall'
         call log_info(trim(line))
         call log_peak_memory(sim, env)
+        call log_time_split(sim, env)
         if (len(sched%stopped_by) > 0) call log_info('stopped early by ' // &
             sched%stopped_by // ' at the checkpoint above; continue with --restart ' // &
             trim(sim%cfg%output%output_dir) // ' (exit status 75)')
@@ -292,6 +295,19 @@ contains
             ' MB), ', total / real(max(particles, 1_i8), wp), ' bytes per particle'
         call log_info(trim(line))
     end subroutine log_peak_memory
+
+    !> Where the step loop's wall time went, mean over the ranks (sph_step_timers), and the
+    !> neighbours per particle within the support (collective).
+    subroutine log_time_split(sim, env)
+        type(simulation_t), intent(in) :: sim
+        type(mpi_env_t), intent(in) :: env
+        character(len=128) :: line
+        call log_info(timers_split_line(global_sum(env, sim%timers%seconds) / &
+            real(env%nranks, wp), global_max(env, sim%timers%rate_evaluations)))
+        write(line, '(a,f0.2,a)') 'neighbours: ', simulation_neighbours_per_particle(sim, env), &
+            ' per particle within the kernel support'
+        call log_info(trim(line))
+    end subroutine log_time_split
 
     !> Wall-clock seconds.
     subroutine wall_clock(seconds)

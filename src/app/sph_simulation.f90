@@ -10,6 +10,8 @@ module sph_simulation
         simulation_step, simulation_rebalance, simulation_write_snapshot
     use sph_schedule, only: schedule_t, schedule_init, schedule_dt_cap, schedule_after_step, &
         schedule_final_report, log_progress_header
+    use sph_step_timers, only: timers_start, timers_stop, timers_enter, timers_leave, &
+        TIMER_OTHER, TIMER_OUTPUT
     implicit none
     private
     public :: simulation_run
@@ -25,6 +27,7 @@ contains
         integer, intent(out) :: status
         type(simulation_t) :: sim
         type(schedule_t) :: sched
+        integer :: previous
 
         if (len(restart_from) > 0) then
             call simulation_restart(sim, env, cfg, restart_from)
@@ -37,11 +40,17 @@ contains
         end if
         call schedule_init(sched, cfg, sim%time, sim%step)
         call log_progress_header()
+        call timers_start(sim%timers)
         do while (.not. sched%finished)
             call simulation_step(sim, env, schedule_dt_cap(sched, sim%time))
+            call timers_enter(sim%timers, TIMER_OTHER, previous)
             call simulation_rebalance(sim, env)
+            call timers_leave(sim%timers, previous)
+            call timers_enter(sim%timers, TIMER_OUTPUT, previous)
             call schedule_after_step(sched, sim, env)
+            call timers_leave(sim%timers, previous)
         end do
+        call timers_stop(sim%timers)
         call schedule_final_report(sched, sim, env)
         status = merge(75, 0, len(sched%stopped_by) > 0)
     end subroutine simulation_run

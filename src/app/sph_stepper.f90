@@ -54,6 +54,8 @@ module sph_stepper
     use sph_remesh_driver, only: remesh_report_t, remesh_fluid, remesh_mode_code, &
         remesh_spacing_factor, REMESH_NONE, REMESH_SAME
     use sph_zones, only: zones_t, zones_create
+    use sph_step_timers, only: step_timers_t, timers_enter, timers_leave, TIMER_SEARCH, &
+        TIMER_RATES, TIMER_HALO, TIMER_INTEGRATION, TIMER_OTHER, TIMER_IDLE
     use sph_transition_driver, only: level_stats_t, create_level_particles, &
         update_transition_zones_of => update_transition_zones, level_totals, &
         refresh_virtual_fields, refine_uniform_state, set_virtual_masses
@@ -65,7 +67,7 @@ module sph_stepper
     public :: simulation_analytic_error, simulation_prepare_neighbours, simulation_free
     public :: simulation_restart, simulation_write_checkpoint, simulation_write_snapshot
     public :: fluid_density_range, simulation_remesh, simulation_remesh_file
-    public :: simulation_log_levels
+    public :: simulation_log_levels, simulation_neighbours_per_particle
 
     type :: simulation_t
         type(config_t) :: cfg
@@ -112,6 +114,8 @@ module sph_stepper
         !> the particles' rates do not belong to their current state (set-up, a restart from
         !> a checkpoint without Verlet rates, a remesh, shifting): verlet evaluates them first
         logical :: rates_stale = .true.
+        !> where the step loop's wall time goes (sph_step_timers; the run loop starts them)
+        type(step_timers_t) :: timers
     end type simulation_t
 
 contains
@@ -215,7 +219,7 @@ contains
         end if
         ! balance by particle count (walls included: they cost work too)
         call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
-        call migrate_particles(sim%domain, env, sim%p)
+        call migrate(sim, env)
         ! each rank's particles in id order before the cell sort: the start then depends only
         ! on the set of particles, not on how they came (lattice, file, any reading layout)
         allocate(order(sim%p%n_owned))
@@ -283,7 +287,7 @@ contains
         sim%snapshot_index = index_text
         if (.not. same_layout) then
             call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
-            call migrate_particles(sim%domain, env, sim%p)
+            call migrate(sim, env)
         end if
         call refine_if_uniform(sim, env)
         call halo_setup(sim%halo, sim%domain, halo_reach(sim))
@@ -327,7 +331,7 @@ contains
         call refine_uniform_state(env, sim%cfg, sim%level_phys, sim%solids, sim%domain, &
             sim%zones, sim%p, sim%next_id)
         call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
-        call migrate_particles(sim%domain, env, sim%p)
+        call migrate(sim, env)
         write(line, '(a,i0,a,i0,a)') 'restart: the checkpoint is uniform; its regions were ' // &
             'refined (', before, ' -> ', global_sum(env, int(sim%p%n_owned, i8)), ' particles)'
         call log_info(trim(line))
@@ -403,17 +407,43 @@ contains
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
         integer, allocatable :: order(:)
+        integer :: previous, in_search
+        call timers_enter(sim%timers, TIMER_SEARCH, previous)
         allocate(order(sim%p%n_owned))
         call cell_sort_order(sim%p%x, sim%p%n_owned, sim%p%dim, sim%phys%kernel%support, order)
         call particles_gather(sim%p, order)
         sim%p%n_ghost = 0
         sim%p%n_total = sim%p%n_owned
+        call timers_enter(sim%timers, TIMER_HALO, in_search)
         call halo_build(sim%halo, sim%domain, env, sim%p)
+        call timers_leave(sim%timers, in_search)
         ! the transport offsets travel only in runs that use them, so new ghosts fetch theirs
-        if (sim%phys%transport_velocity) call halo_refresh(sim%halo, env, sim%p, HALO_TRANSPORT)
+        if (sim%phys%transport_velocity) call refresh_ghosts(sim, env, HALO_TRANSPORT)
         call refresh_neighbours(sim)
+        call timers_leave(sim%timers, previous)
         sim%drift = 0.0_wp
     end subroutine simulation_prepare_neighbours
+
+    !> halo_refresh of `fields`, charged to the halo exchange.
+    subroutine refresh_ghosts(sim, env, fields)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        integer, intent(in) :: fields
+        integer :: previous
+        call timers_enter(sim%timers, TIMER_HALO, previous)
+        call halo_refresh(sim%halo, env, sim%p, fields)
+        call timers_leave(sim%timers, previous)
+    end subroutine refresh_ghosts
+
+    !> Particles to the ranks whose regions they are in, charged to the halo exchange.
+    subroutine migrate(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        integer :: previous
+        call timers_enter(sim%timers, TIMER_HALO, previous)
+        call migrate_particles(sim%domain, env, sim%p)
+        call timers_leave(sim%timers, previous)
+    end subroutine migrate
 
     !> Particles back in their owners' regions (periodic positions wrapped) and everything
     !> rebuilt, unless nothing moved since the last rebuild: before a snapshot, a checkpoint
@@ -422,7 +452,7 @@ contains
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
         if (sim%drift <= 0.0_wp) return
-        call migrate_particles(sim%domain, env, sim%p)
+        call migrate(sim, env)
         call simulation_prepare_neighbours(sim, env)
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
     end subroutine synchronise
@@ -431,6 +461,8 @@ contains
     !> support + list_skin, so it stays complete while no pair closes in by more than the skin.
     subroutine refresh_neighbours(sim)
         type(simulation_t), intent(inout) :: sim
+        integer :: previous
+        call timers_enter(sim%timers, TIMER_SEARCH, previous)
         call build_mirrors(sim%phys, sim%solids, sim%p)
         if (multires(sim)) then
             ! each level's particles pair with their own level only, within its support
@@ -441,6 +473,7 @@ contains
             call build_neighbour_list(sim%p%x, sim%p%n_total, sim%p%n_owned, sim%p%dim, &
                 sim%phys%kernel%support + sim%list_skin, sim%nl)
         end if
+        call timers_leave(sim%timers, previous)
     end subroutine refresh_neighbours
 
     !> Rates at the current state. Ghost fields are current on entry; stages that produce a
@@ -448,30 +481,42 @@ contains
     subroutine evaluate_rates(sim, env)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
+        integer :: previous
+        call timers_enter(sim%timers, TIMER_RATES, previous)
+        if (sim%timers%current /= TIMER_IDLE) sim%timers%rate_evaluations = &
+            sim%timers%rate_evaluations + 1
         if (multires(sim)) then
             call evaluate_level_rates(sim, env)
-            return
+        else
+            call evaluate_uniform_rates(sim, env)
         end if
+        call timers_leave(sim%timers, previous)
+    end subroutine evaluate_rates
+
+    !> evaluate_rates with one level.
+    subroutine evaluate_uniform_rates(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
         if (sim%phys%density_method == DENSITY_SUMMATION) then
             call compute_summation_density(sim%phys, sim%p, sim%nl)
-            call halo_refresh(sim%halo, env, sim%p, HALO_DENSITY)
+            call refresh_ghosts(sim, env, HALO_DENSITY)
             call build_mirrors(sim%phys, sim%solids, sim%p)
         end if
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
         if (sim%phys%walls == WALLS_MORRIS .and. &
             sim%phys%wall_pressure == WALL_PRESSURE_EXTRAPOLATED) then
             call extrapolate_wall_density(sim%phys, sim%p, sim%nl)
-            call halo_refresh(sim%halo, env, sim%p, HALO_DENSITY)
+            call refresh_ghosts(sim, env, HALO_DENSITY)
             call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
         end if
         if (sim%phys%viscosity == VISCOSITY_STRAIN_RATE) then
             call compute_strain_rate(sim%phys, sim%p, sim%nl, sim%solids)
-            call halo_refresh(sim%halo, env, sim%p, HALO_STRAIN)
+            call refresh_ghosts(sim, env, HALO_STRAIN)
             call build_mirrors(sim%phys, sim%solids, sim%p)
         end if
         sim%wall_forces = 0.0_wp
         call compute_rates(sim%phys, sim%p, sim%nl, sim%solids, sim%wall_forces)
-    end subroutine evaluate_rates
+    end subroutine evaluate_uniform_rates
 
     !> evaluate_rates for several levels: every stage level by level with the level's physics
     !> (the neighbour list pairs particles of one level only), one halo refresh per stage.
@@ -483,7 +528,7 @@ contains
             do lv = 0, sim%zones%n_levels - 1
                 call compute_summation_density(sim%level_phys(lv), sim%p, sim%nl, lv)
             end do
-            call halo_refresh(sim%halo, env, sim%p, HALO_DENSITY)
+            call refresh_ghosts(sim, env, HALO_DENSITY)
         end if
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
         if (sim%phys%walls == WALLS_MORRIS .and. &
@@ -491,14 +536,14 @@ contains
             do lv = 0, sim%zones%n_levels - 1
                 call extrapolate_wall_density(sim%level_phys(lv), sim%p, sim%nl, lv)
             end do
-            call halo_refresh(sim%halo, env, sim%p, HALO_DENSITY)
+            call refresh_ghosts(sim, env, HALO_DENSITY)
             call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
         end if
         if (sim%phys%viscosity == VISCOSITY_STRAIN_RATE) then
             do lv = 0, sim%zones%n_levels - 1
                 call compute_strain_rate(sim%level_phys(lv), sim%p, sim%nl, sim%solids, lv)
             end do
-            call halo_refresh(sim%halo, env, sim%p, HALO_STRAIN)
+            call refresh_ghosts(sim, env, HALO_STRAIN)
         end if
         sim%wall_forces = 0.0_wp
         do lv = 0, sim%zones%n_levels - 1
@@ -667,12 +712,24 @@ contains
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
         real(wp), intent(in), optional :: dt_cap
-        real(wp) :: dt
-
+        integer :: previous
+        ! what no other part claims (time-step limits, reductions, health) is integration
+        call timers_enter(sim%timers, TIMER_INTEGRATION, previous)
         if (sim%verlet) then
             call verlet_step(sim, env, dt_cap)
-            return
+        else
+            call predictor_corrector_step(sim, env, dt_cap)
         end if
+        call timers_leave(sim%timers, previous)
+    end subroutine simulation_step
+
+    !> One predictor-corrector step (simulation_step).
+    subroutine predictor_corrector_step(sim, env, dt_cap)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        real(wp), intent(in), optional :: dt_cap
+        real(wp) :: dt
+
         call evaluate_rates(sim, env)
         sim%last_limits = stable_timestep(sim, env)
         dt = sim%last_limits%dt
@@ -691,7 +748,7 @@ contains
         call remesh_if_due(sim, env)
         call update_transition_zones(sim, env)
         call check_health(sim, env)
-    end subroutine simulation_step
+    end subroutine predictor_corrector_step
 
     !> One velocity-Verlet step (sph_integrator verlet_drift, verlet_kick) with one rate
     !> evaluation: the step-start rates are those kept from the previous step (evaluated
@@ -740,7 +797,7 @@ contains
     subroutine refresh_halo(sim, env)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
-        call halo_refresh(sim%halo, env, sim%p, moved_fields(sim))
+        call refresh_ghosts(sim, env, moved_fields(sim))
     end subroutine refresh_halo
 
     !> What changes when particles move: positions, velocities, density, energy, and with the
@@ -788,9 +845,10 @@ contains
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
         real(wp), intent(in) :: dt
-        integer :: lv
+        integer :: lv, previous
         if (sim%phys%shifting == SHIFTING_NONE) return
-        call halo_refresh(sim%halo, env, sim%p, HALO_MOVE)
+        call timers_enter(sim%timers, TIMER_OTHER, previous)
+        call refresh_ghosts(sim, env, HALO_MOVE)
         call refresh_neighbours(sim)
         if (multires(sim)) then
             do lv = 0, sim%zones%n_levels - 1
@@ -802,6 +860,7 @@ contains
             call shift_particles(sim%phys, sim%p, sim%nl, &
                 shifting_diffusion(sim%phys, sim%last_limits%max_speed, dt))
         end if
+        call timers_leave(sim%timers, previous)
     end subroutine shift
 
     !> Verlet-list reuse: while no two particles can have closed in by more than half the
@@ -815,32 +874,36 @@ contains
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
         real(wp) :: start
+        integer :: previous
         sim%drift = sim%drift + global_max(env, max_step_displacement(sim%p))
         if (2.0_wp * sim%drift < 0.5_wp * sim%list_skin) then
-            call halo_refresh(sim%halo, env, sim%p, moved_fields(sim))
+            call refresh_ghosts(sim, env, moved_fields(sim))
             if (uses_mirrors(sim)) call refresh_neighbours(sim)
             if (multires(sim)) then
                 ! the virtual particles take the other level's fields where they now are
+                call timers_enter(sim%timers, TIMER_OTHER, previous)
                 start = MPI_Wtime()
                 call refresh_virtual_fields(sim%zones, sim%level_phys, sim%p, sim%level_stats)
-                call halo_refresh(sim%halo, env, sim%p, moved_fields(sim))
+                call refresh_ghosts(sim, env, moved_fields(sim))
                 sim%transition_seconds = sim%transition_seconds + (MPI_Wtime() - start)
+                call timers_leave(sim%timers, previous)
             end if
         else
-            call migrate_particles(sim%domain, env, sim%p)
+            call migrate(sim, env)
             call simulation_prepare_neighbours(sim, env)
             sim%zones_due = multires(sim)
         end if
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
     end subroutine migrate_and_rebuild
 
-    !> Full-domain remeshing when &remesh says it is due: every every_steps steps and/or
-    !> whenever the time passes a multiple of every_time (collective).
+    !> Full-domain remeshing when &remesh says it is due: every every_steps steps, whenever
+    !> the time passes a multiple of every_time, or when the disorder measure passes
+    !> disorder_threshold (checked every disorder_check_steps steps; collective).
     subroutine remesh_if_due(sim, env)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
         logical :: due
-        integer :: mode
+        integer :: mode, previous
         real(wp) :: disorder
         character(len=120) :: text
         mode = remesh_mode_code(sim%cfg%remesh%mode)
@@ -868,7 +931,9 @@ contains
             end if
         end if
         if (.not. due) return
+        call timers_enter(sim%timers, TIMER_OTHER, previous)
         call simulation_remesh(sim, env, mode)
+        call timers_leave(sim%timers, previous)
         if (sim%cfg%remesh%disorder_threshold <= 0.0_wp) return
         ! a fresh set has some disorder of its own (0.13-0.17 on the cylinder flow): a
         ! threshold below it would remesh at every check
@@ -950,7 +1015,7 @@ contains
         end if
         call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
         call halo_setup(sim%halo, sim%domain, sim%phys%kernel%support + sim%skin)
-        call migrate_particles(sim%domain, env, sim%p)
+        call migrate(sim, env)
         ! in id order before the cell sort, as on set-up: independent of the arrival order
         allocate(order(sim%p%n_owned))
         call id_order(sim%p%id, sim%p%n_owned, order)
@@ -1062,7 +1127,9 @@ contains
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
         real(wp) :: start
+        integer :: previous
         if (.not. sim%zones_due) return
+        call timers_enter(sim%timers, TIMER_OTHER, previous)
         sim%zones_due = .false.
         start = MPI_Wtime()
         call update_transition_zones_of(env, sim%zones, sim%level_phys, sim%solids, sim%domain, &
@@ -1070,9 +1137,10 @@ contains
         call simulation_prepare_neighbours(sim, env)
         ! the new virtuals' masses from the volumes their level leaves them, then the ghosts'
         call set_virtual_masses(sim%zones, sim%level_phys, sim%p, sim%nl)
-        call halo_refresh(sim%halo, env, sim%p, HALO_GHOST)
+        call refresh_ghosts(sim, env, HALO_GHOST)
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
         sim%transition_seconds = sim%transition_seconds + (MPI_Wtime() - start)
+        call timers_leave(sim%timers, previous)
     end subroutine update_transition_zones
 
     !> Per level: real and virtual particles, conversions per step since the last call, real
@@ -1175,7 +1243,7 @@ contains
         call synchronise(sim, env)
         call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
         call halo_setup(sim%halo, sim%domain, halo_reach(sim))
-        call migrate_particles(sim%domain, env, sim%p)
+        call migrate(sim, env)
         call simulation_prepare_neighbours(sim, env)
         after = domain_imbalance(env, sim%p%n_owned)
         write(line, '(a,i0,a,f6.3,a,f6.3)') 'step ', sim%step, ': rebalanced, imbalance ', &
@@ -1240,6 +1308,28 @@ contains
         type(simulation_t), intent(in) :: sim
         writes_virtual = sim%cfg%refinement%write_virtual
     end function writes_virtual
+
+    !> Mean number of neighbours within the kernel support (of the particle's level) per
+    !> owned particle, every kind of particle and neighbour counted, each pair from both
+    !> sides (collective). The bench reports it with the pair interactions per second.
+    real(wp) function simulation_neighbours_per_particle(sim, env) result(mean)
+        type(simulation_t), intent(in) :: sim
+        type(mpi_env_t), intent(in) :: env
+        integer(i8) :: counts(2)
+        integer :: i, j, k
+        real(wp) :: r2max
+        counts = 0
+        do i = 1, sim%nl%n_query
+            r2max = sim%level_phys(sim%p%level(i))%kernel%support**2
+            do k = sim%nl%start(i), sim%nl%start(i + 1) - 1
+                j = sim%nl%index(k)
+                if (sum((sim%p%x(:, i) - sim%p%x(:, j))**2) < r2max) counts(1) = counts(1) + 1
+            end do
+        end do
+        counts(2) = sim%nl%n_query
+        counts = global_sum(env, counts)
+        mean = real(counts(1), wp) / real(max(counts(2), 1_i8), wp)
+    end function simulation_neighbours_per_particle
 
     !> Smallest and largest fluid density over all ranks (collective).
     function fluid_density_range(sim, env) result(range)
