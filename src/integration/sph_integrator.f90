@@ -96,23 +96,18 @@ contains
             p%v_old(:, i) = p%v(:, i)
             p%rho_old(i) = p%rho(i)
             p%e_old(i) = p%e(i)
-            select case (p%kind(i))
-            case (KIND_FLUID, KIND_VIRTUAL)
-                p%v_old(:, i) = p%v(:, i) + half * p%dvdt(:, i)
-                p%x(:, i) = p%x(:, i) + dt * p%v_old(:, i)
-                p%v(:, i) = p%v_old(:, i) + half * p%dvdt(:, i)
-                if (integrate_density) then
-                    p%rho_old(i) = p%rho(i) + half * p%drhodt(i)
-                    p%rho(i) = p%rho_old(i) + half * p%drhodt(i)
-                end if
-                p%e_old(i) = p%e(i) + half * p%dedt(i)
-                p%e(i) = p%e_old(i) + half * p%dedt(i)
-            case (KIND_WALL)
-                if (integrate_density) then
-                    p%rho_old(i) = p%rho(i) + half * p%drhodt(i)
-                    p%rho(i) = p%rho_old(i) + half * p%drhodt(i)
-                end if
-            end select
+            if (.not. integrated(p%kind(i))) cycle
+            ! walls stay in place; only their density follows the continuity equation
+            if (integrate_density) then
+                p%rho_old(i) = p%rho(i) + half * p%drhodt(i)
+                p%rho(i) = p%rho_old(i) + half * p%drhodt(i)
+            end if
+            if (p%kind(i) == KIND_WALL) cycle
+            p%v_old(:, i) = p%v(:, i) + half * p%dvdt(:, i)
+            p%x(:, i) = p%x(:, i) + dt * p%v_old(:, i)
+            p%v(:, i) = p%v_old(:, i) + half * p%dvdt(:, i)
+            p%e_old(i) = p%e(i) + half * p%dedt(i)
+            p%e(i) = p%e_old(i) + half * p%dedt(i)
         end do
     end subroutine verlet_drift
 
@@ -125,16 +120,20 @@ contains
         integer :: i
         half = 0.5_wp * dt
         do i = 1, p%n_owned
-            select case (p%kind(i))
-            case (KIND_FLUID, KIND_VIRTUAL)
-                p%v(:, i) = p%v_old(:, i) + half * p%dvdt(:, i)
-                if (integrate_density) p%rho(i) = p%rho_old(i) + half * p%drhodt(i)
-                p%e(i) = p%e_old(i) + half * p%dedt(i)
-            case (KIND_WALL)
-                if (integrate_density) p%rho(i) = p%rho_old(i) + half * p%drhodt(i)
-            end select
+            if (.not. integrated(p%kind(i))) cycle
+            if (integrate_density) p%rho(i) = p%rho_old(i) + half * p%drhodt(i)
+            if (p%kind(i) == KIND_WALL) cycle
+            p%v(:, i) = p%v_old(:, i) + half * p%dvdt(:, i)
+            p%e(i) = p%e_old(i) + half * p%dedt(i)
         end do
     end subroutine verlet_kick
+
+    !> Kinds the Verlet stages update: fluid and virtual particles move, walls only have their
+    !> density integrated.
+    pure logical function integrated(kind)
+        integer, intent(in) :: kind
+        integrated = kind == KIND_FLUID .or. kind == KIND_VIRTUAL .or. kind == KIND_WALL
+    end function integrated
 
     !> Largest distance an owned particle has moved since save_step_start.
     pure real(wp) function max_step_displacement(p) result(largest)
