@@ -32,7 +32,7 @@ module sph_stepper
     use sph_timestep, only: timestep_limits_t, timestep_limits
     use sph_disorder_measure, only: nearest_distance_sums, disorder_from_sums
     use sph_integrator, only: save_step_start, advance, max_step_displacement, verlet_drift, &
-        verlet_kick
+        verlet_kick, stage_displacement_bound
     use sph_initial, only: create_lattice_particles
     use sph_particle_file, only: read_initial_particles
     use sph_global_ids, only: id_order
@@ -817,9 +817,8 @@ contains
         type(simulation_t), intent(inout) :: sim
         real(wp), intent(in) :: dt
         real(wp) :: max_shift
-        max_shift = (sim%last_limits%max_speed + 0.5_wp * dt * sim%last_limits%max_accel) &
-            * 0.5_wp * dt
-        if (sim%verlet) max_shift = 2.0_wp * max_shift
+        max_shift = stage_displacement_bound(sim%last_limits%max_speed, &
+            sim%last_limits%max_accel, dt, sim%verlet)
         if (2.0_wp * (sim%drift + max_shift) >= sim%list_skin .or. uses_mirrors(sim) .or. &
             sim%p%n_total /= sim%p%n_owned + sim%p%n_ghost) then
             call refresh_neighbours(sim)

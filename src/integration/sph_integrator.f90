@@ -18,7 +18,7 @@ module sph_integrator
     implicit none
     private
     public :: save_step_start, advance, max_step_displacement
-    public :: verlet_drift, verlet_kick
+    public :: verlet_drift, verlet_kick, stage_displacement_bound
 
 contains
 
@@ -127,6 +127,18 @@ contains
             p%e(i) = p%e_old(i) + half * p%dedt(i)
         end do
     end subroutine verlet_kick
+
+    !> How far a particle can move before the rates of a step are evaluated, from the
+    !> largest speed and acceleration of the step start: the predictor's half step
+    !> (vmax + amax dt/2) dt/2, or Verlet's full-step drift dt (vmax + amax dt/2). The
+    !> stepper keeps its neighbour list only while this cannot use up the skin.
+    pure real(wp) function stage_displacement_bound(max_speed, max_accel, dt, verlet) &
+            result(bound)
+        real(wp), intent(in) :: max_speed, max_accel, dt
+        logical, intent(in) :: verlet
+        bound = (max_speed + 0.5_wp * dt * max_accel) * 0.5_wp * dt
+        if (verlet) bound = 2.0_wp * bound
+    end function stage_displacement_bound
 
     !> Kinds the Verlet stages update: fluid and virtual particles move, walls only have their
     !> density integrated.
