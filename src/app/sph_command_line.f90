@@ -93,8 +93,8 @@ contains
         if (.not. (opts%show_help .or. opts%show_version) .and. len(opts%input_file) == 0 &
             .and. len(opts%remesh_mode) == 0) then
             stat = 1
-            errmsg = 'no input file given (usage: sphremesh INPUT.nml [--restart CHECKPOINT]; ' // &
-                'see sphremesh --help)'
+            errmsg = 'no input file given (usage: sphremesh INPUT.nml ' // &
+                '[--restart CHECKPOINT]; see sphremesh --help)'
         end if
     end subroutine parse_command_line
 
@@ -117,14 +117,17 @@ contains
             '       mpirun -np N sphremesh --remesh refine|coarsen|same IN.h5 OUT.h5' // nl // &
             '       sphremesh --help | --version' // nl // nl // &
             'Smoothed Particle Hydrodynamics for low-Reynolds-number, nearly incompressible' // &
-            nl // 'flows, configured by a Fortran namelist file (see doc/input.md and input/).' // &
+            nl // 'flows, configured by a Fortran namelist file (see doc/input.md and ' // &
+            'input/).' // &
             nl // nl // &
             'options:' // nl // &
             '  -h, --help         print this help and exit' // nl // &
-            '  -V, --version      print the version, git hash and build options and exit' // nl // &
+            '  -V, --version      print the version, git hash and build options and exit' // &
+            nl // &
             '  --restart PATH     continue from a checkpoint file, or from the newest' // nl // &
             '                     complete checkpoint in directory PATH' // nl // &
-            '  --check            check the input and set the run up: print the particle' // nl // &
+            '  --check            check the input and set the run up: print the particle' // &
+            nl // &
             '                     counts, memory, time step and steps, then stop (no output)' // &
             nl // &
             '  --remesh MODE IN OUT  remesh the fluid of snapshot or checkpoint IN (refine:' // &

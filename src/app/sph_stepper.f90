@@ -141,7 +141,8 @@ contains
                 2.0_wp * sim%phys%kernel%support) then
                 call fatal_collective('set-up', &
                     'a periodic box side must be at least twice the ' // &
-                    'kernel support radius (&domain box_lo/box_hi, &domain dx, &numerics h_factor)')
+                    'kernel support radius (&domain box_lo/box_hi, &domain dx, ' // &
+                    '&numerics h_factor)')
             end if
         end do
         sim%solids = solids_from_config(cfg)
@@ -354,9 +355,9 @@ contains
                 sim%phys%transport_pressure, ' Pa'
             call log_info(trim(line))
         end if
-        write(line, '(a,i0,a,i0,a,f6.3)') 'particles: ', global_sum(env, int(sim%p%n_owned, i8)), &
-            ' real (fluid ', global_sum(env, int(count(sim%p%kind(1:sim%p%n_owned) == KIND_FLUID), &
-                i8)), &
+        write(line, '(a,i0,a,i0,a,f6.3)') 'particles: ', &
+            global_sum(env, int(sim%p%n_owned, i8)), ' real (fluid ', &
+            global_sum(env, int(count(sim%p%kind(1:sim%p%n_owned) == KIND_FLUID), i8)), &
             '), load imbalance ', domain_imbalance(env, sim%p%n_owned)
         call log_info(trim(line))
     end subroutine log_setup

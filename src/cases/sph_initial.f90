@@ -82,8 +82,8 @@ contains
                         if (.not. site) cycle
                         if (distance > layers * cfg%domain%dx) cycle   ! deeper than the support
                         if (domain_owner(domain, xi) /= domain%rank) cycle
-                        linear = n_fluid_total + 1 + (i - first(1)) + n_ext(1) * ((j - first(2)) + &
-                            n_ext(2) * (k - first(3)))
+                        linear = n_fluid_total + 1 + (i - first(1)) &
+                            + n_ext(1) * ((j - first(2)) + n_ext(2) * (k - first(3)))
                         call add_particle(xi, linear, KIND_WALL, normal, distance, &
                             solid_velocity(solids%list(solid), xi), solid)
                     end do
@@ -165,7 +165,8 @@ contains
                                 end do
                             end do
                         end do
-                        volume = volume + 1.0_wp - real(inside_count, wp) / real(product(n_sub), wp)
+                        volume = volume + 1.0_wp &
+                            - real(inside_count, wp) / real(product(n_sub), wp)
                     end do
                 end do
             end do
@@ -178,7 +179,8 @@ contains
             integer :: k
             d = huge(1.0_wp)
             do k = 1, size(solids%list)
-                if (solids%list(k)%shape /= SOLID_PLANE) d = min(d, solid_distance(solids%list(k), x))
+                if (solids%list(k)%shape /= SOLID_PLANE) &
+                    d = min(d, solid_distance(solids%list(k), x))
             end do
         end function body_distance
 

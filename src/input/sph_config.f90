@@ -75,7 +75,8 @@ contains
         allocate(character(len=max(file_size, 0)) :: text)
         if (file_size > 0) read(unit, iostat=stat, iomsg=iomsg) text
         close(unit)
-        if (stat /= 0) errmsg = "cannot read input file '" // trim(filename) // "': " // trim(iomsg)
+        if (stat /= 0) errmsg = "cannot read input file '" // trim(filename) // "': " // &
+            trim(iomsg)
     end subroutine config_read_file
 
     !> Parse, read every group through its owner and check everything. On error stat is the

@@ -258,6 +258,7 @@ contains
             if (all(steps < 0)) exit
         end do
         stat = 1
-        errmsg = "no complete checkpoint '" // prefix // "*.h5' in '" // directory // "'" // skipped
+        errmsg = "no complete checkpoint '" // prefix // "*.h5' in '" // directory // "'" // &
+            skipped
     end subroutine find_latest_checkpoint
 end module sph_checkpoint

@@ -300,7 +300,8 @@ contains
         do axis = 1, domain%dim
             if (.not. domain%periodic(axis)) cycle
             if (xi(axis) < domain%lo(axis) .or. xi(axis) >= domain%hi(axis)) then
-                xi(axis) = domain%lo(axis) + modulo(xi(axis) - domain%lo(axis), domain%length(axis))
+                xi(axis) = domain%lo(axis) &
+                    + modulo(xi(axis) - domain%lo(axis), domain%length(axis))
                 ! modulo can round up to exactly length
                 if (xi(axis) >= domain%hi(axis)) xi(axis) = domain%lo(axis)
             end if

@@ -28,7 +28,8 @@ module sph_particles
     integer, parameter :: KIND_FLUID = 0    !< moves with the flow
     integer, parameter :: KIND_WALL = 1     !< fixed wall particle, carries its wall's velocity
     integer, parameter :: KIND_VIRTUAL = 2  !< remeshing: particle of the other resolution level
-    integer, parameter :: KIND_MIRROR = 3   !< type-2 mirror image, rebuilt each stage, never output
+    !> type-2 mirror image, rebuilt each stage, never output
+    integer, parameter :: KIND_MIRROR = 3
 
     ! storage types of a field
     integer, parameter :: FIELD_REAL = 1    !< real(wp)

@@ -136,8 +136,9 @@ contains
                 phys%kernel%h, 0.0_wp, cfg%fluid%density_variation))
             if (.not. (phys%c > 0.0_wp)) then
                 stat = 1
-                errmsg = '&fluid sound_speed = 0 asks for the automatic (Morris) sound speed, ' // &
-                    'but this flow has no velocity scale (resting walls, no body force): give ' // &
+                errmsg = '&fluid sound_speed = 0 asks for the automatic (Morris) sound ' // &
+                    'speed, but this flow has no velocity scale (resting walls, no body ' // &
+                    'force): give ' // &
                     '&fluid sound_speed > 0 or &fluid velocity_scale > 0'
                 return
             end if

@@ -40,7 +40,8 @@ module sph_rates
     use sph_solids, only: solids_t, solid_distance, solid_normal, SOLID_PLANE
     implicit none
     private
-    public :: update_pressure, extrapolate_wall_density, compute_summation_density, compute_strain_rate, compute_rates
+    public :: update_pressure, extrapolate_wall_density, compute_summation_density
+    public :: compute_strain_rate, compute_rates
     public :: local_max_speed, local_max_acceleration, morris_beta
 
     !> strain(6) components: xx, yy, zz, xy, xz, yz
