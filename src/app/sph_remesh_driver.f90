@@ -291,15 +291,12 @@ contains
         subroutine keep_off_solids(gap)
             real(wp), intent(in) :: gap
             logical, allocatable :: clear(:)
-            integer :: a, s
+            integer :: a
             if (.not. present(solids)) return
             if (.not. allocated(solids%list)) return
             allocate(clear(n_new))
-            clear = .true.
             do a = 1, n_new
-                do s = 1, size(solids%list)
-                    if (solid_distance(solids%list(s), xn(:, a) + box_lo) < gap) clear(a) = .false.
-                end do
+                clear(a) = clear_of_solids(xn(:, a), gap)
             end do
             xn = xn(:, pack([(a, a = 1, n_new)], clear))
             idn = idn(pack([(a, a = 1, n_new)], clear))
@@ -313,8 +310,7 @@ contains
             real(wp), allocatable :: y(:, :), moves(:, :)
             integer, allocatable :: orig(:)
             real(wp) :: reach, len_(3), z(3)
-            integer :: pass, ny, a, s, ax
-            logical :: clear
+            integer :: pass, ny, a, ax
             reach = 2.0_wp * RELAX_H_FACTOR * dx
             len_ = box_hi - box_lo
             allocate(moves(3, max(n_new, 1)))
@@ -327,19 +323,22 @@ contains
                     do ax = 1, dim
                         if (periodic(ax)) z(ax) = modulo(z(ax), len_(ax))
                     end do
-                    clear = .true.
-                    if (present(solids)) then
-                        if (allocated(solids%list)) then
-                            do s = 1, size(solids%list)
-                                if (solid_distance(solids%list(s), z + box_lo) < &
-                                    SAME_LEVEL_WALL_GAP * dx) clear = .false.
-                            end do
-                        end if
-                    end if
-                    if (clear) xn(:, a) = z
+                    if (clear_of_solids(z, SAME_LEVEL_WALL_GAP * dx)) xn(:, a) = z
                 end do
             end do
         end subroutine relax_new_set
+
+        !> Whether the point z (relative to box_lo) lies at least gap from every solid.
+        logical function clear_of_solids(z, gap)
+            real(wp), intent(in) :: z(3), gap
+            integer :: s
+            clear_of_solids = .true.
+            if (.not. present(solids)) return
+            if (.not. allocated(solids%list)) return
+            do s = 1, size(solids%list)
+                if (solid_distance(solids%list(s), z + box_lo) < gap) clear_of_solids = .false.
+            end do
+        end function clear_of_solids
 
         !> ids for the keys in idn (all ranks take part; rank 0 holds the keys).
         subroutine fresh_ids()
