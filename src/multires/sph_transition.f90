@@ -53,7 +53,7 @@ module sph_transition
     use sph_refine, only: refine_positions
     use sph_coarsen, only: coarsen_select, id_hash
     use sph_global_ids, only: id_order   ! the stable id sort (no communication)
-    use sph_cell_list, only: neighbour_list_t, build_neighbour_list
+    use sph_cell_list, only: neighbour_list_t, build_cross_list
     use sph_interpolation_kernels, only: INTERP_M4, interp_weight, interp_support
     implicit none
     private
@@ -203,7 +203,6 @@ contains
         !> profile next to a wall lies beyond all its one-sided sources
         logical, intent(in), optional :: clip(:)
         real(wp) :: lo_f, hi_f
-        real(wp), allocatable :: x_all(:, :)
         type(neighbour_list_t) :: nl
         integer :: a, k, j, nf
         integer, allocatable :: near(:)
@@ -218,22 +217,18 @@ contains
         n_clipped = 0
         if (n_dst <= 0) return
         f_dst(:, 1:n_dst) = 0.0_wp
-        allocate(x_all(3, n_dst + n_src))
-        x_all(:, 1:n_dst) = x_dst(:, 1:n_dst)
-        x_all(:, n_dst + 1:) = x_src(:, 1:n_src)
-        ! the tensor kernel's support is a cube of half-width 2 h: its corners are in reach
-        call build_neighbour_list(x_all, n_dst + n_src, n_dst, dim, &
-            interp_support(INTERP_M4) * h * sqrt(real(dim, wp)) * (1.0_wp + 1.0e-12_wp), nl)
+        ! the tensor kernel's support is a cube of half-width 2 h
+        call build_cross_list(x_dst, n_dst, x_src, n_src, dim, &
+            interp_support(INTERP_M4) * h * (1.0_wp + 1.0e-12_wp), nl)
         allocate(near(size(phi_weights)), dn(3, size(phi_weights)))
         do a = 1, n_dst
             n_near = 0
             do k = nl%start(a), nl%start(a + 1) - 1
                 j = nl%index(k)
-                if (j <= n_dst) cycle
                 if (n_near == size(near)) exit
                 n_near = n_near + 1
-                near(n_near) = j - n_dst
-                dn(:, n_near) = (x_src(:, j - n_dst) - x_dst(:, a)) / h
+                near(n_near) = j
+                dn(:, n_near) = (x_src(:, j) - x_dst(:, a)) / h
             end do
             if (n_near == 0) then
                 n_empty = n_empty + 1

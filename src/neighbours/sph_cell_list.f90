@@ -7,6 +7,7 @@ module sph_cell_list
     implicit none
     private
     public :: neighbour_list_t, build_neighbour_list, brute_force_neighbours, cell_sort_order
+    public :: build_cross_list
 
     !> The binning of one build: kept with the list so a rebuild reuses its storage.
     type :: cell_grid_t
@@ -51,12 +52,7 @@ contains
         real(wp), allocatable :: r2max(:)
         integer, allocatable :: members(:)
 
-        nl%n_query = n_query
-        if (allocated(nl%start)) then
-            if (size(nl%start) < n_query + 1) deallocate(nl%start)
-        end if
-        if (.not. allocated(nl%start)) allocate(nl%start(max(n_query + 1, 1)))
-        if (.not. allocated(nl%index)) allocate(nl%index(max(64, 40 * n_query)))
+        call reserve_rows(nl, n_query, 40)
 
         n_levels = 1
         if (present(level)) n_levels = size(level_radius)
@@ -110,6 +106,70 @@ contains
         nl%start(n_query + 1) = pairs + 1
         nl%n_pairs = pairs
     end subroutine build_neighbour_list
+
+    !> Neighbours of query points among a separate set of candidates (remeshing's transfers:
+    !> old to new particles, sources to virtual particles): for each of the n_query points xq,
+    !> every candidate xc(:, k), k <= n_cand, with |xq - xc| < half_width on EVERY axis (a
+    !> cube: the support of a tensor-product kernel), index holding candidate indices. Only the
+    !> candidates are binned, in cells of half_width: a query scans 3^dim cells and never
+    !> sees the other queries. Order as in build_neighbour_list (reproducible).
+    subroutine build_cross_list(xq, n_query, xc, n_cand, dim, half_width, nl)
+        real(wp), intent(in) :: xq(:, :), xc(:, :)
+        integer, intent(in) :: n_query, n_cand, dim
+        real(wp), intent(in) :: half_width
+        type(neighbour_list_t), intent(inout) :: nl
+        integer :: i, j, k, c(3), lo(3), hi(3), b, cz, row, first, last, pairs
+        real(wp) :: xi(3), d(3)
+
+        call reserve_rows(nl, n_query, 16)
+        if (allocated(nl%grids)) then
+            if (size(nl%grids) /= 1) deallocate(nl%grids)
+        end if
+        if (.not. allocated(nl%grids)) allocate(nl%grids(0:0))
+        call bin_particles(xc, n_cand, dim, half_width, nl%grids(0))
+        pairs = 0
+        associate (grid => nl%grids(0))
+            do i = 1, n_query
+                nl%start(i) = pairs + 1
+                xi = 0.0_wp
+                xi(1:dim) = xq(1:dim, i)
+                c = cell_coords(grid, xi)
+                lo = 1; hi = 1
+                lo(1:dim) = max(c(1:dim) - 1, 1)
+                hi(1:dim) = min(c(1:dim) + 1, grid%ncell(1:dim))
+                do cz = lo(3), hi(3)
+                    do b = lo(2), hi(2)
+                        row = grid%ncell(1) * ((b - 1) + grid%ncell(2) * (cz - 1))
+                        first = grid%cell_start(row + lo(1))
+                        last = grid%cell_start(row + hi(1) + 1) - 1
+                        if (pairs + last - first + 2 > size(nl%index)) call grow(nl%index, &
+                            max(pairs + last - first + 2, projected_pairs(pairs, i, n_query)))
+                        do k = first, last
+                            j = grid%sorted(k)
+                            d = 0.0_wp
+                            d(1:dim) = abs(xi(1:dim) - xc(1:dim, j))
+                            nl%index(pairs + 1) = j
+                            if (max(d(1), d(2), d(3)) < half_width) pairs = pairs + 1
+                        end do
+                    end do
+                end do
+            end do
+        end associate
+        nl%start(n_query + 1) = pairs + 1
+        nl%n_pairs = pairs
+    end subroutine build_cross_list
+
+    !> Room for the rows of n_query queries (an initial guess of per_query pairs each).
+    subroutine reserve_rows(nl, n_query, per_query)
+        type(neighbour_list_t), intent(inout) :: nl
+        integer, intent(in) :: n_query, per_query
+        nl%n_query = n_query
+        if (allocated(nl%start)) then
+            if (size(nl%start) < n_query + 1) deallocate(nl%start)
+        end if
+        if (.not. allocated(nl%start)) allocate(nl%start(max(n_query + 1, 1)))
+        if (.not. allocated(nl%index)) allocate(nl%index(max(64, per_query * n_query)))
+    end subroutine reserve_rows
 
     !> array holds `needed` entries, the first ones kept.
     subroutine grow(array, needed)

@@ -46,8 +46,8 @@
 !>    stat = 2). Without stat, error stop.
 module sph_remesh_interp
     use sph_kinds, only: wp
-    use sph_cell_list, only: neighbour_list_t, build_neighbour_list
-    use sph_interpolation_kernels, only: INTERP_M4, interp_weight, interp_support
+    use sph_cell_list, only: neighbour_list_t, build_cross_list
+    use sph_interpolation_kernels, only: INTERP_M4, m4_bspline, interp_support
     implicit none
     private
     public :: remesh_transfer
@@ -67,94 +67,112 @@ contains
         integer, intent(out), optional :: stat
         character(len=*), intent(out), optional :: errmsg
         integer, intent(out), optional :: n_mass_fallback, n_velocity_fallback
-        real(wp), allocatable :: x_all(:, :), wb(:), w(:), s0(:), s1(:, :), s2(:, :, :)
-        real(wp), allocatable :: gam(:, :), en(:), vol(:)
-        integer, allocatable :: pold(:), pnew(:)
-        logical, allocatable :: first_order(:)
+        !> an isolated old particle's one pair: negligible in its target's velocity moments
+        real(wp), parameter :: ISOLATED_WEIGHT = 1.0e-30_wp, ISOLATED_REACH = 4.0_wp
+        ! per new particle: the velocity interpolant's moments (s0, s1, s2) and the sums
+        ! sum u v (va) and sum u d v^T (vb) that give the corrected interpolant in one pass
+        real(wp), allocatable :: en(:), vol(:), s0(:), s1(:, :), s2(:, :, :), va(:, :), &
+            vb(:, :, :)
+        ! per old particle: its pairs (offset / h, base weight, new particle)
+        real(wp), allocatable :: dl(:, :), wl(:), cw(:)
+        integer, allocatable :: al(:)
         type(neighbour_list_t) :: nl
-        integer :: i, j, k, p, np, lost, empty, n_mfb, n_vfb, r, q, n_isolated
-        real(wp) :: d(3), f, beta(3), mom_old(3), mom_new(3), mass_new, dv(3)
+        integer :: i, j, k, p, c, nloc, lost, empty, n_mfb, n_vfb
+        real(wp) :: d(3), f, beta(3), gam(3), t0(3), t1(3, 3), mom_old(3), mom_new(3), &
+            mass_new, dv(3), u, vj
         logical :: ok
         character(len=120) :: msg
 
         if (present(stat)) stat = 0
         m_new(1:n_new) = 0.0_wp; v_new(:, 1:n_new) = 0.0_wp
         rho_new(1:n_new) = 0.0_wp; e_new(1:n_new) = 0.0_wp
-        allocate(x_all(3, n_old + n_new))
-        x_all(:, 1:n_old) = x_old(:, 1:n_old)
-        x_all(:, n_old + 1:) = x_new(:, 1:n_new)
-        x_all(dim + 1:, :) = 0.0_wp
-        call build_neighbour_list(x_all, n_old + n_new, n_old, dim, &
-            interp_support(INTERP_M4) * h * sqrt(real(dim, wp)), nl)
-
-        ! old-new pairs with W > 0, grouped by old particle
-        np = 0
-        do p = 1, nl%n_pairs
-            if (nl%index(p) > n_old) np = np + 1
-        end do
-        allocate(wb(np), w(np), pold(np), pnew(np))
-        np = 0
+        ! old-new pairs: M4's support is the cube of half-width 2 h
+        call build_cross_list(x_old, n_old, x_new, n_new, dim, interp_support(INTERP_M4) * h, nl)
+        nloc = 1
         do j = 1, n_old
+            nloc = max(nloc, nl%start(j + 1) - nl%start(j))
+        end do
+        allocate(dl(3, nloc), wl(nloc), cw(nloc), al(nloc))
+        allocate(en(n_new), vol(n_new), s0(n_new), s1(3, n_new), s2(3, 3, n_new), &
+            va(3, n_new), vb(3, 3, n_new))
+        en = 0.0_wp; vol = 0.0_wp; s0 = 0.0_wp; s1 = 0.0_wp; s2 = 0.0_wp; va = 0.0_wp
+        vb = 0.0_wp
+        lost = 0
+        n_mfb = 0
+        do j = 1, n_old
+            nloc = 0
             do p = nl%start(j), nl%start(j + 1) - 1
                 k = nl%index(p)
-                if (k <= n_old) cycle
-                d = x_all(:, k) - x_all(:, j)
-                f = interp_weight(INTERP_M4, dim, d, h)
+                d = 0.0_wp
+                d(1:dim) = (x_new(1:dim, k) - x_old(1:dim, j)) / h
+                f = product(m4_bspline(d(1:dim)))
                 if (f <= 0.0_wp) cycle
-                np = np + 1
-                wb(np) = f
-                pold(np) = j
-                pnew(np) = k - n_old
+                nloc = nloc + 1
+                dl(:, nloc) = d
+                wl(nloc) = f
+                al(nloc) = k
+            end do
+            if (nloc == 0) then
+                ! alone in a void: everything to the nearest new particle (a fallback)
+                call nearest_new(j, al(1), ok)
+                if (.not. ok) then
+                    lost = lost + 1
+                    cycle
+                end if
+                nloc = 1
+                dl(:, 1) = 0.0_wp
+                dl(1:dim, 1) = (x_new(1:dim, al(1)) - x_old(1:dim, j)) / h
+                wl(1) = ISOLATED_WEIGHT
+                cw(1) = 1.0_wp
+                n_mfb = n_mfb + 1
+            else
+                ! first-order corrected weights: the centroid kept (module header)
+                t0 = 0.0_wp
+                t1 = 0.0_wp
+                do p = 1, nloc
+                    t0 = t0 + wl(p) * dl(:, p)
+                    do c = 1, dim
+                        t1(1:dim, c) = t1(1:dim, c) + wl(p) * dl(1:dim, p) * dl(c, p)
+                    end do
+                end do
+                call solve_small(dim, t1, -t0, beta, ok)
+                if (ok) then
+                    do p = 1, nloc
+                        cw(p) = wl(p) * (1.0_wp + dot_product(beta(1:dim), dl(1:dim, p)))
+                    end do
+                    ok = all(cw(1:nloc) >= 0.0_wp) .and. sum(cw(1:nloc)) > 0.0_wp
+                end if
+                if (.not. ok) then
+                    n_mfb = n_mfb + 1
+                    cw(1:nloc) = wl(1:nloc)
+                end if
+                cw(1:nloc) = cw(1:nloc) / sum(cw(1:nloc))
+            end if
+            vj = m_old(j) / rho_old(j)
+            do p = 1, nloc
+                i = al(p)
+                ! extensive quantities handed on
+                m_new(i) = m_new(i) + cw(p) * m_old(j)
+                en(i) = en(i) + cw(p) * m_old(j) * e_old(j)
+                vol(i) = vol(i) + cw(p) * vj
+                ! velocity moments at the new particle, offsets from it (-d) and u = W V
+                u = wl(p) * vj
+                d = -dl(:, p)
+                s0(i) = s0(i) + u
+                s1(1:dim, i) = s1(1:dim, i) + u * d(1:dim)
+                va(1:dim, i) = va(1:dim, i) + u * v_old(1:dim, j)
+                do c = 1, dim
+                    s2(1:dim, c, i) = s2(1:dim, c, i) + u * d(1:dim) * d(c)
+                    vb(1:dim, c, i) = vb(1:dim, c, i) + u * d(c) * v_old(1:dim, j)
+                end do
             end do
         end do
-
-        call hand_isolated_to_nearest()
-
-        ! moments per old particle (d = (x_a - x_i)/h)
-        allocate(s0(n_old), s1(3, n_old), s2(3, 3, n_old))
-        call moments(n_old, pold, 1.0_wp, s0, s1, s2)
-        lost = count(s0 <= 0.0_wp)
         if (lost > 0) then
             write(msg, '(a, i0, a)') 'remesh_transfer: ', lost, &
                 ' old particle(s) have no new particle within the support'
             call fail(1)
             return
         end if
-
-        ! local first-order corrected weights per old particle, fallback: normalised W
-        n_mfb = n_isolated
-        p = 1
-        do j = 1, n_old
-            q = p
-            do while (q <= np)
-                if (pold(q) /= j) exit
-                q = q + 1
-            end do
-            ! pairs p .. q-1 belong to old particle j
-            call solve_small(dim, s2(:, :, j), -s1(:, j), beta, ok)
-            if (ok) then
-                do r = p, q - 1
-                    d = (x_new(:, pnew(r)) - x_old(:, j)) / h
-                    w(r) = wb(r) * (1.0_wp + dot_product(beta(1:dim), d(1:dim)))
-                end do
-                ok = all(w(p:q - 1) >= 0.0_wp) .and. sum(w(p:q - 1)) > 0.0_wp
-            end if
-            if (.not. ok) then
-                n_mfb = n_mfb + 1
-                w(p:q - 1) = wb(p:q - 1)
-            end if
-            w(p:q - 1) = w(p:q - 1) / sum(w(p:q - 1))
-            p = q
-        end do
-
-        allocate(en(n_new), vol(n_new))
-        en = 0.0_wp; vol = 0.0_wp
-        do p = 1, np
-            i = pnew(p); j = pold(p)
-            m_new(i) = m_new(i) + w(p) * m_old(j)
-            en(i) = en(i) + w(p) * m_old(j) * e_old(j)
-            vol(i) = vol(i) + w(p) * m_old(j) / rho_old(j)
-        end do
         empty = count(m_new(1:n_new) <= 0.0_wp .or. vol <= 0.0_wp)
         if (empty > 0) then
             write(msg, '(a, i0, a)') 'remesh_transfer: ', empty, &
@@ -165,29 +183,22 @@ contains
         e_new(1:n_new) = en / m_new(1:n_new)
         rho_new(1:n_new) = m_new(1:n_new) / vol
 
-        ! velocity: first-order corrected interpolation at each new particle, u = W V
-        deallocate(s0, s1, s2)
-        allocate(s0(n_new), s1(3, n_new), s2(3, 3, n_new), gam(3, n_new), first_order(n_new))
-        do p = 1, np
-            wb(p) = wb(p) * m_old(pold(p)) / rho_old(pold(p))
-        end do
-        call moments(n_new, pnew, -1.0_wp, s0, s1, s2)
+        ! velocity: the first-order corrected interpolant,
+        ! v_a = sum_j u_aj (1 + gam . d_j) v_j / (s0 + gam . s1) = (va + vb gam) / (s0 + gam . s1)
         n_vfb = 0
         do i = 1, n_new
-            call solve_small(dim, s2(:, :, i), -s1(:, i), gam(:, i), first_order(i))
-            if (first_order(i)) first_order(i) = &
-                s0(i) + dot_product(gam(1:dim, i), s1(1:dim, i)) > 1.0e-12_wp * s0(i)
-            if (.not. first_order(i)) then
+            call solve_small(dim, s2(:, :, i), -s1(:, i), gam, ok)
+            if (ok) ok = s0(i) + dot_product(gam(1:dim), s1(1:dim, i)) > 1.0e-12_wp * s0(i)
+            if (.not. ok) then
                 n_vfb = n_vfb + 1
-                gam(:, i) = 0.0_wp
+                gam = 0.0_wp
             end if
-            s0(i) = s0(i) + dot_product(gam(1:dim, i), s1(1:dim, i))
-        end do
-        do p = 1, np
-            i = pnew(p); j = pold(p)
-            d = (x_old(:, j) - x_new(:, i)) / h
-            f = wb(p) * (1.0_wp + dot_product(gam(1:dim, i), d(1:dim))) / s0(i)
-            v_new(1:dim, i) = v_new(1:dim, i) + f * v_old(1:dim, j)
+            f = s0(i) + dot_product(gam(1:dim), s1(1:dim, i))
+            d = 0.0_wp
+            do c = 1, dim
+                d(1:dim) = d(1:dim) + gam(c) * vb(1:dim, c, i)
+            end do
+            v_new(1:dim, i) = (va(1:dim, i) + d(1:dim)) / f
         end do
 
         ! one uniform correction: total momentum as before
@@ -208,85 +219,31 @@ contains
 
     contains
 
-        !> An old particle with no new particle within its support (alone in a void of a
-        !> developed flow, next to a body whose first row the new set keeps off the surface)
-        !> hands everything to its nearest new particle: one pair of negligible weight
-        !> ISOLATED_WEIGHT (so it does not bias that particle's velocity interpolation) is
-        !> inserted in its place in the pairs, grouped by old particle. Counted as a mass
-        !> fallback. Only within ISOLATED_REACH h: farther, the sets do not match (a caller's
-        !> error) and the particle stays lost (stat 1). Brute force over the new particles:
-        !> such particles are rare.
-        subroutine hand_isolated_to_nearest()
-            real(wp), parameter :: ISOLATED_WEIGHT = 1.0e-30_wp, ISOLATED_REACH = 4.0_wp
-            logical, allocatable :: paired(:)
-            real(wp), allocatable :: wb2(:)
-            integer, allocatable :: po2(:), pn2(:)
-            integer :: t, c, a, best
+        !> The nearest new particle within ISOLATED_REACH h of old particle jj (an old particle
+        !> with no new particle in its support: alone in a void of a developed flow, or next to
+        !> a body whose first row the new set keeps off the surface). Farther, the sets do not
+        !> match (a caller's error) and the particle is lost (stat 1). Brute force: such
+        !> particles are rare.
+        subroutine nearest_new(jj, best, found)
+            integer, intent(in) :: jj
+            integer, intent(out) :: best
+            logical, intent(out) :: found
+            integer :: a
             real(wp) :: dd(3), d2, best_d2
-            allocate(paired(n_old))
-            paired = .false.
-            paired(pold(1:np)) = .true.
-            n_isolated = count(.not. paired)
-            if (n_isolated == 0 .or. n_new == 0) then
-                n_isolated = 0
-                return
-            end if
-            allocate(wb2(np + n_isolated), po2(np + n_isolated), pn2(np + n_isolated))
-            c = 0
-            t = 1
-            do j = 1, n_old
-                do while (t <= np)
-                    if (pold(t) /= j) exit
-                    c = c + 1
-                    wb2(c) = wb(t); po2(c) = pold(t); pn2(c) = pnew(t)
-                    t = t + 1
-                end do
-                if (paired(j)) cycle
-                best = 0
-                best_d2 = huge(1.0_wp)
-                do a = 1, n_new
-                    dd = x_new(:, a) - x_old(:, j)
-                    dd(dim + 1:) = 0.0_wp
-                    d2 = sum(dd * dd)
-                    if (d2 < best_d2 .and. d2 <= (ISOLATED_REACH * h)**2) then
-                        best_d2 = d2
-                        best = a
-                    end if
-                end do
-                if (best == 0) cycle
-                c = c + 1
-                wb2(c) = ISOLATED_WEIGHT; po2(c) = j; pn2(c) = best
+            best = 0
+            best_d2 = (ISOLATED_REACH * h)**2
+            do a = 1, n_new
+                dd = 0.0_wp
+                dd(1:dim) = x_new(1:dim, a) - x_old(1:dim, jj)
+                d2 = sum(dd * dd)
+                if (d2 <= best_d2) then
+                    if (best /= 0 .and. d2 == best_d2) cycle
+                    best_d2 = d2
+                    best = a
+                end if
             end do
-            n_isolated = c - np
-            np = c
-            call move_alloc(wb2, wb)
-            call move_alloc(po2, pold)
-            call move_alloc(pn2, pnew)
-            deallocate(w)
-            allocate(w(np))
-        end subroutine hand_isolated_to_nearest
-
-        !> Zeroth, first and second moments of the current pair weights wb, gathered on the side
-        !> given by owner (pold or pnew); d = sgn (x_new - x_old) / h, i.e. measured from the
-        !> owner towards its partners.
-        subroutine moments(n, owner, sgn, m0, m1, m2)
-            integer, intent(in) :: n, owner(:)
-            real(wp), intent(in) :: sgn
-            real(wp), intent(out) :: m0(:), m1(:, :), m2(:, :, :)
-            integer :: t, o, c
-            real(wp) :: dd(3)
-            m0(1:n) = 0.0_wp; m1(:, 1:n) = 0.0_wp; m2(:, :, 1:n) = 0.0_wp
-            do t = 1, np
-                o = owner(t)
-                dd = sgn * (x_new(:, pnew(t)) - x_old(:, pold(t))) / h
-                dd(dim + 1:) = 0.0_wp
-                m0(o) = m0(o) + wb(t)
-                m1(:, o) = m1(:, o) + wb(t) * dd
-                do c = 1, 3
-                    m2(:, c, o) = m2(:, c, o) + wb(t) * dd * dd(c)
-                end do
-            end do
-        end subroutine moments
+            found = best /= 0
+        end subroutine nearest_new
 
         subroutine fail(code)
             integer, intent(in) :: code
