@@ -1006,7 +1006,8 @@ contains
             base = global_max_id(env, sim%p%id, sim%p%n_owned)
             call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
             call particles_init(walls, 1024, sim%cfg%domain%dimension)
-            call create_lattice_particles(sim%cfg, sim%phys, sim%solids, sim%domain, walls)
+            call create_lattice_particles(sim%cfg, sim%phys, sim%solids, sim%domain, walls, &
+                walls_only=.true.)
             keep = pack([(k, k = 1, walls%n_owned)], walls%kind(1:walls%n_owned) /= KIND_FLUID)
             c = sim%p%n_owned
             call particles_append(sim%p, walls, keep)

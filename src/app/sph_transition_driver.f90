@@ -632,7 +632,8 @@ contains
             level_cfg = cfg
             level_cfg%domain%dx = cfg%domain%dx / 2.0_wp**lv
             call particles_init(lattice, 1024, dim)
-            call create_lattice_particles(level_cfg, level_phys(lv), solids, domain, lattice)
+            call create_lattice_particles(level_cfg, level_phys(lv), solids, domain, lattice, &
+                walls_only=.true.)
             allocate(wanted(lattice%n_owned))
             do j = 1, lattice%n_owned
                 wanted(j) = lattice%kind(j) /= KIND_FLUID

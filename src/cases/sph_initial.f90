@@ -22,16 +22,18 @@ contains
 
     !> The initial particles: this rank's share of the fluid lattice (bodies and walls left
     !> out) and the wall particles of every solid, with masses rho0 dx^dim and ids by site.
-    subroutine create_lattice_particles(cfg, phys, solids, domain, p)
+    subroutine create_lattice_particles(cfg, phys, solids, domain, p, walls_only)
         type(config_t), intent(in) :: cfg
         type(physics_t), intent(in) :: phys
         type(solids_t), intent(in) :: solids
         type(domain_t), intent(in) :: domain
         type(particles_t), intent(inout) :: p
+        !> only the wall particles (a remesh's new walls; ids as in the full lattice)
+        logical, intent(in), optional :: walls_only
         integer :: n_inside(3), first(3), last(3), idx(3), i, j, k, solid, layers, axis
         integer(i8) :: n_fluid_total, n_ext(3), linear
         real(wp) :: xi(3), normal(3), distance, mass, fluid_mass
-        logical :: site
+        logical :: site, make_fluid
 
         n_inside = 1
         do axis = 1, cfg%domain%dimension
@@ -41,11 +43,13 @@ contains
         n_fluid_total = product(int(n_inside, i8))
         mass = cfg%fluid%rho0 * cfg%domain%dx**cfg%domain%dimension
         fluid_mass = mass
-        if (has_bodies()) fluid_mass = cfg%fluid%rho0 * fluid_volume() / &
-            real(max(1_i8, count_fluid_sites()), wp)
         p%n_owned = 0
+        make_fluid = .true.
+        if (present(walls_only)) make_fluid = .not. walls_only
+        if (make_fluid .and. has_bodies()) fluid_mass = cfg%fluid%rho0 * fluid_volume() / &
+            real(max(1_i8, count_fluid_sites()), wp)
         ! fluid
-        do k = 1, n_inside(3)
+        do k = 1, merge(n_inside(3), 0, make_fluid)
             do j = 1, n_inside(2)
                 do i = 1, n_inside(1)
                     idx = [i, j, k]
