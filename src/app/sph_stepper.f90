@@ -1,61 +1,46 @@
 !> The simulation state and how it advances: set-up, restart, one time step as a sequence of
-!> named stages, rebalancing, snapshots and checkpoints of the state, and the error against
-!> the analytic reference. This is where communication is orchestrated (migration, halo
-!> build and refresh between the stages of a step); the physics modules it calls make no MPI
-!> calls. When to write, log and stop is decided by sph_schedule; the loop is sph_simulation.
+!> named stages, rebalancing and the multi-resolution zone updates. This is where
+!> communication is orchestrated (migration, halo build and refresh between the stages of a
+!> step); the physics modules it calls make no MPI calls. When to write, log and stop is
+!> decided by sph_schedule; the loop is sph_simulation.
+!> Submodules hold the rest, one concern per file, behind the interfaces declared here:
+!> sph_stepper_remesh (remeshing during a run and offline), sph_stepper_output (forces,
+!> snapshots, checkpoints, the check report, the levels' log lines, the analytic error) and
+!> sph_stepper_shared (the helpers those submodules call as well as the step: see there).
 module sph_stepper
     use mpi_f08, only: MPI_Wtime
     use sph_kinds, only: wp, i8
-    use sph_config, only: config_t, config_to_text
-    use sph_mpi_env, only: mpi_env_t, global_sum, global_max, global_min, broadcast_text
+    use sph_config, only: config_t, config_parse
+    use sph_mpi_env, only: mpi_env_t, global_sum, global_max, broadcast_text
     use sph_errors, only: fatal_collective
-    use sph_logger, only: log_info, log_warn_counted
-    use sph_particles, only: particles_t, particles_init, particles_gather, KIND_FLUID, &
-        KIND_VIRTUAL, &
-        HALO_MOVE, HALO_TRANSPORT, HALO_DENSITY, HALO_STRAIN, HALO_GHOST, pack_widths, &
-        ALL_FIELDS, &
-        particles_reserve, &
-        particles_pack, particles_unpack
-    use sph_physics, only: physics_t, physics_from_config, DENSITY_SUMMATION, &
-        VISCOSITY_STRAIN_RATE, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR, SHIFTING_NONE, &
-        WALLS_MORRIS, WALL_PRESSURE_EXTRAPOLATED
+    use sph_logger, only: log_info
+    use sph_particles, only: particles_t, particles_gather, KIND_FLUID, HALO_MOVE, &
+        HALO_TRANSPORT, HALO_GHOST
+    use sph_physics, only: physics_t, DENSITY_SUMMATION, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR, &
+        SHIFTING_NONE
     use sph_kernel, only: kernel_name
-    use sph_walls, only: solids_from_config, build_mirrors, wall_layers
+    use sph_walls, only: build_mirrors, wall_layers
     use sph_solids, only: solids_t
-    use sph_domain, only: domain_t, domain_create, domain_partition, migrate_particles, &
-        domain_imbalance
-    use sph_halo, only: halo_t, halo_setup, halo_build, halo_refresh
+    use sph_domain, only: domain_t, domain_partition, domain_imbalance
+    use sph_halo, only: halo_t, halo_setup, halo_build
     use sph_cell_list, only: neighbour_list_t, build_neighbour_list, cell_sort_order
-    use sph_rates, only: update_pressure, compute_summation_density, compute_strain_rate, &
-        compute_rates, extrapolate_wall_density, local_max_speed, local_max_acceleration
+    use sph_rates, only: update_pressure
     use sph_shifting, only: shifting_diffusion, shift_particles
-    use sph_timestep, only: timestep_limits_t, timestep_limits
-    use sph_disorder_measure, only: nearest_distance_sums, disorder_from_sums
+    use sph_timestep, only: timestep_limits_t
     use sph_integrator, only: save_step_start, advance, max_step_displacement, verlet_drift, &
         verlet_kick, stage_displacement_bound
     use sph_initial, only: create_lattice_particles
     use sph_particle_file, only: read_initial_particles
-    use sph_global_ids, only: id_order
-    use sph_reference, only: reference_t, reference_from_config, relative_l2_error, &
-        relative_l2_from_sums
-    use sph_snapshot, only: write_snapshot, snapshot_filename, snapshot_begin, snapshot_end
+    use sph_global_ids, only: id_order, global_max_id
+    use sph_reference, only: reference_t
+    use sph_snapshot, only: snapshot_filename, snapshot_begin, snapshot_end
     use sph_hdf5, only: h5_file_t, h5_write_attribute
     use sph_health, only: health_problem_t, check_particles, check_timestep, HEALTH_OK
-    use sph_checkpoint, only: write_checkpoint, read_checkpoint, checkpoint_filename, &
-        find_latest_checkpoint
-    use sph_xdmf, only: xdmf_index_entry, write_xdmf
-    use sph_filesystem, only: delete_file, make_directories
+    use sph_checkpoint, only: read_checkpoint, find_latest_checkpoint
     use sph_version, only: code_version
-    use sph_config, only: config_parse
-    use sph_snapshot, only: read_snapshot_header, read_snapshot_rows
-    use sph_checkpoint, only: stored_spacing
-    use sph_global_ids, only: global_max_id
-    use sph_particles, only: particles_free, particles_append
-    use sph_remesh_driver, only: remesh_report_t, remesh_fluid, remesh_mode_code, &
-        remesh_spacing_factor, REMESH_NONE, REMESH_SAME
-    use sph_zones, only: zones_t, zones_create
+    use sph_zones, only: zones_t
     use sph_step_timers, only: step_timers_t, timers_enter, timers_leave, TIMER_SEARCH, &
-        TIMER_RATES, TIMER_HALO, TIMER_INTEGRATION, TIMER_OTHER, TIMER_IDLE
+        TIMER_HALO, TIMER_INTEGRATION, TIMER_OTHER
     use sph_transition_driver, only: level_stats_t, create_level_particles, &
         update_transition_zones_of => update_transition_zones, level_totals, &
         refresh_virtual_fields, refine_uniform_state, set_virtual_masses
@@ -118,84 +103,170 @@ module sph_stepper
         type(step_timers_t) :: timers
     end type simulation_t
 
+    ! The parts of set-up, migration, rate evaluation and the time step that the step and the
+    ! submodules share (submodule sph_stepper_shared; private).
+    interface
+        !> What a fresh start and a restart share: parameters, walls, the domain, empty particles.
+        module subroutine setup_common(sim, env, cfg)
+            type(simulation_t), intent(out) :: sim
+            type(mpi_env_t), intent(in) :: env
+            type(config_t), intent(in) :: cfg
+        end subroutine setup_common
+
+        !> More than one resolution level (&region groups).
+        module pure logical function multires(sim)
+            type(simulation_t), intent(in) :: sim
+        end function multires
+
+        !> halo_refresh of `fields`, charged to the halo exchange.
+        module subroutine refresh_ghosts(sim, env, fields)
+            type(simulation_t), intent(inout) :: sim
+            type(mpi_env_t), intent(in) :: env
+            integer, intent(in) :: fields
+        end subroutine refresh_ghosts
+
+        !> Particles to the ranks whose regions they are in, charged to the halo exchange.
+        module subroutine migrate(sim, env)
+            type(simulation_t), intent(inout) :: sim
+            type(mpi_env_t), intent(in) :: env
+        end subroutine migrate
+
+        !> Particles back in their owners' regions (periodic positions wrapped) and everything
+        !> rebuilt, unless nothing moved since the last rebuild: before a snapshot, a checkpoint
+        !> (a restart then continues bit for bit) or a rebalance (collective).
+        module subroutine synchronise(sim, env)
+            type(simulation_t), intent(inout) :: sim
+            type(mpi_env_t), intent(in) :: env
+        end subroutine synchronise
+
+        !> Rates at the current state. Ghost fields are current on entry; stages that produce a
+        !> field the neighbours need (summation density, strain rate) refresh the ghosts.
+        module subroutine evaluate_rates(sim, env)
+            type(simulation_t), intent(inout) :: sim
+            type(mpi_env_t), intent(in) :: env
+        end subroutine evaluate_rates
+
+        !> Time-step limit for the current rates (collective).
+        module function stable_timestep(sim, env) result(lim)
+            type(simulation_t), intent(in) :: sim
+            type(mpi_env_t), intent(in) :: env
+            type(timestep_limits_t) :: lim
+        end function stable_timestep
+    end interface
+
+    ! Remeshing during a run and offline (submodule sph_stepper_remesh).
+    interface
+        !> Full-domain remeshing when &remesh says it is due: every every_steps steps, whenever
+        !> the time passes a multiple of every_time, or when the disorder measure passes
+        !> disorder_threshold (checked every disorder_check_steps steps; collective).
+        module subroutine remesh_if_due(sim, env)
+            type(simulation_t), intent(inout) :: sim
+            type(mpi_env_t), intent(in) :: env
+        end subroutine remesh_if_due
+
+        !> Remesh every fluid particle (sph_remesh_driver: refine, coarsen or same level) and
+        !> rebuild around them (collective). Refining or coarsening changes &domain dx in the
+        !> run's configuration (kernel, walls, time step follow) and regenerates the wall
+        !> particles at the new spacing; same level keeps them. Logs what it did.
+        module subroutine simulation_remesh(sim, env, mode)
+            type(simulation_t), intent(inout) :: sim
+            type(mpi_env_t), intent(in) :: env
+            integer, intent(in) :: mode
+        end subroutine simulation_remesh
+
+        !> Offline remeshing (sphremesh --remesh MODE IN.h5 OUT.h5, collective, any rank count):
+        !> the particles of a snapshot or checkpoint IN, set up with the input stored in it, are
+        !> remeshed and written as a checkpoint OUT a run continues from (--restart OUT.h5 with
+        !> &domain dx set to the new spacing, which OUT records as its attribute 'dx'; the input
+        !> stored in OUT is IN's). The wall particles are always regenerated from the stored
+        !> input's walls and bodies at the new spacing (a snapshot lacks their wall geometry).
+        module subroutine simulation_remesh_file(env, mode_name, in_path, out_path)
+            type(mpi_env_t), intent(in) :: env
+            character(len=*), intent(in) :: mode_name, in_path, out_path
+        end subroutine simulation_remesh_file
+    end interface
+
+    ! Reports and output files: forces, snapshots, checkpoints, the check report, the levels'
+    ! log lines, the error against the analytic reference (submodule sph_stepper_output).
+    interface
+        !> Write a checkpoint of the current state and keep only the newest checkpoints_kept of
+        !> those this run wrote (collective).
+        module subroutine simulation_write_checkpoint(sim, env)
+            type(simulation_t), intent(inout) :: sim
+            type(mpi_env_t), intent(in) :: env
+        end subroutine simulation_write_checkpoint
+
+        !> Force of the fluid on every solid (xyz, pressure|viscous, solid) from the rates of the
+        !> step's second stage, the ones that advanced it (collective).
+        module function simulation_solid_forces(sim, env) result(forces)
+            type(simulation_t), intent(in) :: sim
+            type(mpi_env_t), intent(in) :: env
+            real(wp), allocatable :: forces(:, :, :)
+        end function simulation_solid_forces
+
+        !> The forces on the solids as rows of <output_dir>/<case>_forces.csv: time, step, body,
+        !> Fx, Fy, Fz, then the pressure and viscous parts (N, per unit depth in 2D). Collective;
+        !> rank 0 writes. `fresh` starts the file (a new run); otherwise rows are appended.
+        module subroutine simulation_write_forces(sim, env, fresh)
+            type(simulation_t), intent(in) :: sim
+            type(mpi_env_t), intent(in) :: env
+            logical, intent(in) :: fresh
+        end subroutine simulation_write_forces
+
+        !> The forces on the solids in the log, one line per solid (collective).
+        module subroutine simulation_log_forces(sim, env)
+            type(simulation_t), intent(in) :: sim
+            type(mpi_env_t), intent(in) :: env
+        end subroutine simulation_log_forces
+
+        !> What --check reports after set-up (collective): particles per kind and level, the
+        !> memory they take, the first time step with its limiting criterion and the steps to
+        !> t_end. Evaluates the rates once; advances nothing and writes no file.
+        module subroutine simulation_check_report(sim, env)
+            type(simulation_t), intent(inout) :: sim
+            type(mpi_env_t), intent(in) :: env
+        end subroutine simulation_check_report
+
+        !> Per level: real and virtual particles, conversions per step since the last call, real
+        !> mass and momentum, and the drift of the real mass from the start (collective; no
+        !> output with one level).
+        module subroutine simulation_log_levels(sim, env)
+            type(simulation_t), intent(inout) :: sim
+            type(mpi_env_t), intent(in) :: env
+        end subroutine simulation_log_levels
+
+        !> Relative L2 error of the velocity of all fluid particles against the analytic
+        !> reference named by &run analytic (sph_reference; collective). Negative when there is
+        !> none.
+        module real(wp) function simulation_analytic_error(sim, env, steady) result(error)
+            type(simulation_t), intent(in) :: sim
+            type(mpi_env_t), intent(in) :: env
+            logical, intent(in), optional :: steady
+        end function simulation_analytic_error
+
+        !> A snapshot, its line in the run's index and the XDMF series rewritten (rank 0).
+        module subroutine simulation_write_snapshot(sim, env)
+            type(simulation_t), intent(inout) :: sim
+            type(mpi_env_t), intent(in) :: env
+        end subroutine simulation_write_snapshot
+
+        !> Mean number of neighbours within the kernel support (of the particle's level) per
+        !> owned particle, every kind of particle and neighbour counted, each pair from both
+        !> sides (collective). The bench reports it with the pair interactions per second.
+        module real(wp) function simulation_neighbours_per_particle(sim, env) result(mean)
+            type(simulation_t), intent(in) :: sim
+            type(mpi_env_t), intent(in) :: env
+        end function simulation_neighbours_per_particle
+
+        !> Smallest and largest fluid density over all ranks (collective).
+        module function fluid_density_range(sim, env) result(range)
+            type(simulation_t), intent(in) :: sim
+            type(mpi_env_t), intent(in) :: env
+            real(wp) :: range(2)
+        end function fluid_density_range
+    end interface
+
 contains
-
-    !> What a fresh start and a restart share: parameters, walls, the domain, empty particles.
-    subroutine setup_common(sim, env, cfg)
-        type(simulation_t), intent(out) :: sim
-        type(mpi_env_t), intent(in) :: env
-        type(config_t), intent(in) :: cfg
-        integer :: stat, axis
-        character(len=:), allocatable :: errmsg
-        logical :: periodic(3)
-
-        sim%cfg = cfg
-        sim%input_text = config_to_text(cfg)
-        sim%snapshot_index = ''
-        allocate(sim%checkpoints(0))
-        call physics_from_config(cfg, sim%phys, stat, errmsg)
-        if (stat /= 0) call fatal_collective('set-up', errmsg)
-        do axis = 1, cfg%domain%dimension
-            if (cfg%domain%is_periodic(axis) .and. &
-                cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis) < &
-                2.0_wp * sim%phys%kernel%support) then
-                call fatal_collective('set-up', &
-                    'a periodic box side must be at least twice the ' // &
-                    'kernel support radius (&domain box_lo/box_hi, &domain dx, ' // &
-                    '&numerics h_factor)')
-            end if
-        end do
-        sim%solids = solids_from_config(cfg)
-        sim%zones = zones_create(cfg, sim%solids)
-        call setup_level_physics(sim)
-        allocate(sim%wall_forces(3, 2, size(sim%solids%list)))
-        sim%wall_forces = 0.0_wp
-        call reference_from_config(cfg, sim%ref, stat, errmsg)
-        if (stat /= 0) call fatal_collective('set-up', errmsg)
-        periodic = .false.
-        do axis = 1, cfg%domain%dimension
-            periodic(axis) = cfg%domain%is_periodic(axis)
-        end do
-        call domain_create(sim%domain, env, cfg%domain%dimension, cfg%domain%box_lo, &
-            cfg%domain%box_hi, periodic)
-        call particles_init(sim%p, 1024, cfg%domain%dimension)
-        ! ghosts reach the support plus a skin that covers any motion within one step, plus
-        ! the neighbour-list skin that particles may use up over the steps between rebuilds
-        sim%skin = 2.0_wp * cfg%numerics%cfl * sim%phys%kernel%h
-        sim%list_skin = 0.1_wp * sim%phys%kernel%h
-        sim%time = 0.0_wp
-        sim%step = 0
-        sim%next_remesh_time = huge(1.0_wp)
-        if (cfg%remesh%every_time > 0.0_wp) sim%next_remesh_time = cfg%remesh%every_time
-        sim%verlet = trim(cfg%numerics%integrator) == 'verlet'
-        sim%rates_stale = .true.
-    end subroutine setup_common
-
-    !> The physics of every resolution level: the kernel (and what scales with it) at the
-    !> level's spacing dx / 2^level; one sound speed for all (the largest), so the equation of
-    !> state is the same on both sides of an interface.
-    subroutine setup_level_physics(sim)
-        type(simulation_t), intent(inout) :: sim
-        type(config_t) :: level_cfg
-        integer :: lv, stat
-        character(len=:), allocatable :: errmsg
-        allocate(sim%level_phys(0:sim%zones%n_levels - 1))
-        sim%level_phys(0) = sim%phys
-        do lv = 1, sim%zones%n_levels - 1
-            level_cfg = sim%cfg
-            level_cfg%domain%dx = sim%cfg%domain%dx / 2.0_wp**lv
-            call physics_from_config(level_cfg, sim%level_phys(lv), stat, errmsg)
-            if (stat /= 0) call fatal_collective('set-up', errmsg)
-        end do
-        sim%phys%c = maxval(sim%level_phys(:)%c)
-        sim%level_phys(:)%c = sim%phys%c
-    end subroutine setup_level_physics
-
-    !> More than one resolution level (&region groups).
-    pure logical function multires(sim)
-        type(simulation_t), intent(in) :: sim
-        multires = sim%zones%n_levels > 1
-    end function multires
 
     !> Build everything from a validated configuration (collective).
     subroutine simulation_setup(sim, env, cfg)
@@ -362,29 +433,6 @@ contains
         call log_info(trim(line))
     end subroutine log_setup
 
-    !> Write a checkpoint of the current state and keep only the newest checkpoints_kept of
-    !> those this run wrote (collective).
-    subroutine simulation_write_checkpoint(sim, env)
-        type(simulation_t), intent(inout) :: sim
-        type(mpi_env_t), intent(in) :: env
-        character(len=:), allocatable :: path, errmsg
-        integer :: stat
-        call synchronise(sim, env)
-        path = checkpoint_filename(trim(sim%cfg%output%output_dir), trim(sim%cfg%run%case_name), &
-            sim%step)
-        call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, &
-            sim%cfg%domain%dimension, &
-            code_version, sim%input_text, sim%snapshot_index, stat, errmsg, sim%cfg%domain%dx)
-        if (stat /= 0) call fatal_collective('checkpoint', errmsg)
-        if (all(sim%checkpoints /= path)) &
-            sim%checkpoints = [character(len=512) :: sim%checkpoints, path]
-        do while (size(sim%checkpoints) > sim%cfg%restart%checkpoints_kept)
-            if (env%rank == 0) call delete_file(trim(sim%checkpoints(1)))
-            sim%checkpoints = sim%checkpoints(2:)
-        end do
-        call log_info('checkpoint: ' // path)
-    end subroutine simulation_write_checkpoint
-
     !> How far ghosts reach beyond a rank's region (see migrate_and_rebuild).
     !> With several levels, ghosts must also cover what the transition zones' virtual particles
     !> are made from: the interpolation reaches 2 sqrt(dim) coarse spacings.
@@ -425,39 +473,6 @@ contains
         sim%drift = 0.0_wp
     end subroutine simulation_prepare_neighbours
 
-    !> halo_refresh of `fields`, charged to the halo exchange.
-    subroutine refresh_ghosts(sim, env, fields)
-        type(simulation_t), intent(inout) :: sim
-        type(mpi_env_t), intent(in) :: env
-        integer, intent(in) :: fields
-        integer :: previous
-        call timers_enter(sim%timers, TIMER_HALO, previous)
-        call halo_refresh(sim%halo, env, sim%p, fields)
-        call timers_leave(sim%timers, previous)
-    end subroutine refresh_ghosts
-
-    !> Particles to the ranks whose regions they are in, charged to the halo exchange.
-    subroutine migrate(sim, env)
-        type(simulation_t), intent(inout) :: sim
-        type(mpi_env_t), intent(in) :: env
-        integer :: previous
-        call timers_enter(sim%timers, TIMER_HALO, previous)
-        call migrate_particles(sim%domain, env, sim%p)
-        call timers_leave(sim%timers, previous)
-    end subroutine migrate
-
-    !> Particles back in their owners' regions (periodic positions wrapped) and everything
-    !> rebuilt, unless nothing moved since the last rebuild: before a snapshot, a checkpoint
-    !> (a restart then continues bit for bit) or a rebalance (collective).
-    subroutine synchronise(sim, env)
-        type(simulation_t), intent(inout) :: sim
-        type(mpi_env_t), intent(in) :: env
-        if (sim%drift <= 0.0_wp) return
-        call migrate(sim, env)
-        call simulation_prepare_neighbours(sim, env)
-        call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
-    end subroutine synchronise
-
     !> Mirrors and the neighbour list for the current positions. The list holds pairs within
     !> support + list_skin, so it stays complete while no pair closes in by more than the skin.
     subroutine refresh_neighbours(sim)
@@ -476,230 +491,6 @@ contains
         end if
         call timers_leave(sim%timers, previous)
     end subroutine refresh_neighbours
-
-    !> Rates at the current state. Ghost fields are current on entry; stages that produce a
-    !> field the neighbours need (summation density, strain rate) refresh the ghosts.
-    subroutine evaluate_rates(sim, env)
-        type(simulation_t), intent(inout) :: sim
-        type(mpi_env_t), intent(in) :: env
-        integer :: previous
-        call timers_enter(sim%timers, TIMER_RATES, previous)
-        if (sim%timers%current /= TIMER_IDLE) sim%timers%rate_evaluations = &
-            sim%timers%rate_evaluations + 1
-        if (multires(sim)) then
-            call evaluate_level_rates(sim, env)
-        else
-            call evaluate_uniform_rates(sim, env)
-        end if
-        call timers_leave(sim%timers, previous)
-    end subroutine evaluate_rates
-
-    !> evaluate_rates with one level.
-    subroutine evaluate_uniform_rates(sim, env)
-        type(simulation_t), intent(inout) :: sim
-        type(mpi_env_t), intent(in) :: env
-        if (sim%phys%density_method == DENSITY_SUMMATION) then
-            call compute_summation_density(sim%phys, sim%p, sim%nl)
-            call refresh_ghosts(sim, env, HALO_DENSITY)
-            call build_mirrors(sim%phys, sim%solids, sim%p)
-        end if
-        call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
-        if (sim%phys%walls == WALLS_MORRIS .and. &
-            sim%phys%wall_pressure == WALL_PRESSURE_EXTRAPOLATED) then
-            call extrapolate_wall_density(sim%phys, sim%p, sim%nl)
-            call refresh_ghosts(sim, env, HALO_DENSITY)
-            call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
-        end if
-        if (sim%phys%viscosity == VISCOSITY_STRAIN_RATE) then
-            call compute_strain_rate(sim%phys, sim%p, sim%nl, sim%solids)
-            call refresh_ghosts(sim, env, HALO_STRAIN)
-            call build_mirrors(sim%phys, sim%solids, sim%p)
-        end if
-        sim%wall_forces = 0.0_wp
-        call compute_rates(sim%phys, sim%p, sim%nl, sim%solids, sim%wall_forces)
-    end subroutine evaluate_uniform_rates
-
-    !> evaluate_rates for several levels: every stage level by level with the level's physics
-    !> (the neighbour list pairs particles of one level only), one halo refresh per stage.
-    subroutine evaluate_level_rates(sim, env)
-        type(simulation_t), intent(inout) :: sim
-        type(mpi_env_t), intent(in) :: env
-        integer :: lv
-        if (sim%phys%density_method == DENSITY_SUMMATION) then
-            do lv = 0, sim%zones%n_levels - 1
-                call compute_summation_density(sim%level_phys(lv), sim%p, sim%nl, lv)
-            end do
-            call refresh_ghosts(sim, env, HALO_DENSITY)
-        end if
-        call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
-        if (sim%phys%walls == WALLS_MORRIS .and. &
-            sim%phys%wall_pressure == WALL_PRESSURE_EXTRAPOLATED) then
-            do lv = 0, sim%zones%n_levels - 1
-                call extrapolate_wall_density(sim%level_phys(lv), sim%p, sim%nl, lv)
-            end do
-            call refresh_ghosts(sim, env, HALO_DENSITY)
-            call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
-        end if
-        if (sim%phys%viscosity == VISCOSITY_STRAIN_RATE) then
-            do lv = 0, sim%zones%n_levels - 1
-                call compute_strain_rate(sim%level_phys(lv), sim%p, sim%nl, sim%solids, lv)
-            end do
-            call refresh_ghosts(sim, env, HALO_STRAIN)
-        end if
-        sim%wall_forces = 0.0_wp
-        do lv = 0, sim%zones%n_levels - 1
-            call compute_rates(sim%level_phys(lv), sim%p, sim%nl, sim%solids, sim%wall_forces, lv)
-        end do
-    end subroutine evaluate_level_rates
-
-    !> Force of the fluid on every solid (xyz, pressure|viscous, solid) from the rates of the
-    !> step's second stage, the ones that advanced it (collective).
-    function simulation_solid_forces(sim, env) result(forces)
-        type(simulation_t), intent(in) :: sim
-        type(mpi_env_t), intent(in) :: env
-        real(wp), allocatable :: forces(:, :, :)
-        forces = reshape(global_sum(env, reshape(sim%wall_forces, [size(sim%wall_forces)])), &
-            shape(sim%wall_forces))
-    end function simulation_solid_forces
-
-    !> The forces on the solids as rows of <output_dir>/<case>_forces.csv: time, step, body,
-    !> Fx, Fy, Fz, then the pressure and viscous parts (N, per unit depth in 2D). Collective;
-    !> rank 0 writes. `fresh` starts the file (a new run); otherwise rows are appended.
-    subroutine simulation_write_forces(sim, env, fresh)
-        type(simulation_t), intent(in) :: sim
-        type(mpi_env_t), intent(in) :: env
-        logical, intent(in) :: fresh
-        real(wp), allocatable :: forces(:, :, :)
-        character(len=:), allocatable :: path
-        character(len=512) :: line
-        integer :: unit, k, stat
-        logical :: exists
-        if (size(sim%solids%list) == 0) return
-        forces = simulation_solid_forces(sim, env)
-        path = trim(sim%cfg%output%output_dir) // '/' // trim(sim%cfg%run%case_name) // &
-            '_forces.csv'
-        stat = 0
-        if (env%rank == 0) then
-            ! a restart into a new output folder writes its forces before any snapshot
-            call make_directories(trim(sim%cfg%output%output_dir), stat)
-            inquire(file=path, exist=exists)
-            if (stat /= 0) then
-                continue
-            else if (fresh .or. .not. exists) then
-                open(newunit=unit, file=path, status='replace', action='write', iostat=stat)
-                if (stat == 0) write(unit, '(a)') 'time,step,body,Fx,Fy,Fz,Fx_pressure,' // &
-                    'Fy_pressure,Fz_pressure,Fx_viscous,Fy_viscous,Fz_viscous'
-            else
-                open(newunit=unit, file=path, status='old', position='append', &
-                    action='write', iostat=stat)
-            end if
-            if (stat == 0) then
-                do k = 1, size(forces, 3)
-                    write(line, '(es24.16,",",i0,",",a,9(",",es24.16))') sim%time, sim%step, &
-                        trim(sim%solids%list(k)%name), forces(:, 1, k) + forces(:, 2, k), &
-                        forces(:, 1, k), forces(:, 2, k)
-                    write(unit, '(a)') trim(line)
-                end do
-                close(unit)
-            end if
-        end if
-        if (global_max(env, int(stat, i8)) /= 0) &
-            call fatal_collective('output', "cannot write the forces to '" // path // "'")
-    end subroutine simulation_write_forces
-
-    !> The forces on the solids in the log, one line per solid (collective).
-    subroutine simulation_log_forces(sim, env)
-        type(simulation_t), intent(in) :: sim
-        type(mpi_env_t), intent(in) :: env
-        real(wp), allocatable :: forces(:, :, :)
-        character(len=256) :: line
-        character(len=:), allocatable :: unit_text
-        integer :: k
-        if (size(sim%solids%list) == 0) return
-        forces = simulation_solid_forces(sim, env)
-        unit_text = merge(' N/m', ' N  ', sim%cfg%domain%dimension == 2)
-        do k = 1, size(forces, 3)
-            write(line, '(a,3es13.5,a,3es13.5,a)') 'force on ' // &
-                trim(sim%solids%list(k)%name) // ':', forces(:, 1, k) + forces(:, 2, k), &
-                trim(unit_text) // ' (viscous part', forces(:, 2, k), ')'
-            call log_info(trim(line))
-        end do
-    end subroutine simulation_log_forces
-
-    !> What --check reports after set-up (collective): particles per kind and level, the
-    !> memory they take, the first time step with its limiting criterion and the steps to
-    !> t_end. Evaluates the rates once; advances nothing and writes no file.
-    subroutine simulation_check_report(sim, env)
-        type(simulation_t), intent(inout) :: sim
-        type(mpi_env_t), intent(in) :: env
-        type(timestep_limits_t) :: lim
-        integer :: level, max_level
-        integer(i8) :: counts(3), pairs
-        real(wp) :: bytes, limit_value
-        character(len=256) :: line
-        character(len=:), allocatable :: limiting
-        max_level = int(global_max(env, int(maxval(sim%p%level(1:sim%p%n_owned), &
-            mask=sim%p%n_owned > 0), i8)))
-        do level = 0, max(max_level, 0)
-            counts = global_sum(env, [ &
-                int(count(sim%p%kind(1:sim%p%n_owned) == KIND_FLUID .and. &
-                    sim%p%level(1:sim%p%n_owned) == level), i8), &
-                int(count(sim%p%kind(1:sim%p%n_owned) /= KIND_FLUID .and. &
-                    sim%p%level(1:sim%p%n_owned) == level), i8), &
-                int(count(sim%p%level(1:sim%p%n_owned) == level), i8)])
-            write(line, '(a,i0,a,i0,a,i0,a,i0,a)') 'check: level ', level, ': ', counts(3), &
-                ' particles (', counts(1), ' fluid, ', counts(2), ' wall)'
-            call log_info(trim(line))
-        end do
-        ! storage of every field of every slot (owned, ghosts, mirrors) and the neighbour list
-        pairs = global_sum(env, int(sim%nl%n_pairs, i8))
-        bytes = global_sum(env, real(sim%p%capacity, wp) * particle_bytes(sim%p)) + &
-            4.0_wp * real(pairs, wp)
-        write(line, '(a,f10.1,a,f8.1,a,i0,a)') 'check: memory about ', bytes / 1.0e6_wp, &
-            ' MB over all ranks (', bytes / max(1.0_wp, real(global_sum(env, &
-            int(sim%p%n_owned, i8)), wp)), ' bytes per particle, ', pairs, ' neighbour pairs)'
-        call log_info(trim(line))
-        call evaluate_rates(sim, env)
-        lim = stable_timestep(sim, env)
-        limit_value = lim%dt
-        limiting = 'CFL'
-        if (lim%viscous <= min(lim%cfl, lim%force)) limiting = 'viscous'
-        if (lim%force <= min(lim%cfl, lim%viscous)) limiting = 'force'
-        if (sim%cfg%numerics%fixed_dt > 0.0_wp) then
-            limit_value = sim%cfg%numerics%fixed_dt
-            limiting = '&numerics fixed_dt'
-        end if
-        write(line, '(a,es10.3,a,es10.3,a,es10.3,a,es10.3,a)') 'check: first time step ', &
-            limit_value, ' s, limited by ' // limiting // ' (CFL ', lim%cfl, ', viscous ', &
-            lim%viscous, ', force ', lim%force, ')'
-        call log_info(trim(line))
-        write(line, '(a,i0,a,es10.3,a)') 'check: about ', nint(max(0.0_wp, &
-            sim%cfg%run%t_end - sim%time) / limit_value, i8), ' steps to t_end = ', &
-            sim%cfg%run%t_end, ' s at that step'
-        call log_info(trim(line))
-    contains
-        real(wp) function particle_bytes(p)
-            type(particles_t), intent(in) :: p
-            integer :: n_real, n_int
-            call pack_widths(p, ALL_FIELDS, n_real, n_int)
-            particle_bytes = 8.0_wp * n_real + 8.0_wp * 1 + 4.0_wp * (n_int - 1)
-        end function particle_bytes
-    end subroutine simulation_check_report
-
-    !> Time-step limit for the current rates (collective).
-    function stable_timestep(sim, env) result(lim)
-        type(simulation_t), intent(in) :: sim
-        type(mpi_env_t), intent(in) :: env
-        type(timestep_limits_t) :: lim
-        real(wp) :: vmax, amax, h
-        vmax = global_max(env, local_max_speed(sim%p))
-        amax = global_max(env, local_max_acceleration(sim%p))
-        ! the finest level's smoothing length sets the step
-        h = sim%phys%kernel%h
-        if (multires(sim)) h = minval(sim%level_phys(:)%kernel%h)
-        lim = timestep_limits(h, sim%phys%c, vmax, sim%phys%nu, amax, &
-            sim%cfg%numerics%cfl, sim%cfg%numerics%viscous_safety, sim%cfg%numerics%force_safety)
-    end function stable_timestep
 
     logical function uses_mirrors(sim)
         type(simulation_t), intent(in) :: sim
@@ -896,226 +687,6 @@ contains
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
     end subroutine migrate_and_rebuild
 
-    !> Full-domain remeshing when &remesh says it is due: every every_steps steps, whenever
-    !> the time passes a multiple of every_time, or when the disorder measure passes
-    !> disorder_threshold (checked every disorder_check_steps steps; collective).
-    subroutine remesh_if_due(sim, env)
-        type(simulation_t), intent(inout) :: sim
-        type(mpi_env_t), intent(in) :: env
-        logical :: due
-        integer :: mode, previous
-        real(wp) :: disorder
-        character(len=120) :: text
-        mode = remesh_mode_code(sim%cfg%remesh%mode)
-        if (mode == REMESH_NONE) return
-        due = .false.
-        if (sim%cfg%remesh%every_steps > 0) &
-            due = mod(sim%step, int(sim%cfg%remesh%every_steps, i8)) == 0
-        if (sim%time >= sim%next_remesh_time * (1.0_wp - 1.0e-12_wp)) then
-            due = .true.
-            do while (sim%next_remesh_time <= sim%time * (1.0_wp + 1.0e-12_wp))
-                sim%next_remesh_time = sim%next_remesh_time + sim%cfg%remesh%every_time
-            end do
-        end if
-        if (.not. due .and. sim%cfg%remesh%disorder_threshold > 0.0_wp) then
-            if (mod(sim%step, int(sim%cfg%remesh%disorder_check_steps, i8)) == 0) then
-                disorder = disorder_from_sums(global_sum(env, &
-                    nearest_distance_sums(sim%p, sim%nl)))
-                due = disorder > sim%cfg%remesh%disorder_threshold
-                if (due) then
-                    write(text, '(a, f8.5, a, f8.5)') 'remesh: disorder (CoV of the ' // &
-                        'nearest-neighbour distances) ', disorder, ' > threshold ', &
-                        sim%cfg%remesh%disorder_threshold
-                    call log_info(text)
-                end if
-            end if
-        end if
-        if (.not. due) return
-        call timers_enter(sim%timers, TIMER_OTHER, previous)
-        call simulation_remesh(sim, env, mode)
-        call timers_leave(sim%timers, previous)
-        if (sim%cfg%remesh%disorder_threshold <= 0.0_wp) return
-        ! a fresh set has some disorder of its own (0.13-0.17 on the cylinder flow): a
-        ! threshold below it would remesh at every check
-        disorder = disorder_from_sums(global_sum(env, nearest_distance_sums(sim%p, sim%nl)))
-        write(text, '(a, f8.5)') 'remesh: disorder after the remesh ', disorder
-        call log_info(text)
-        if (disorder > sim%cfg%remesh%disorder_threshold) call log_warn_counted( &
-            'disorder_threshold', '&remesh disorder_threshold is below the disorder of a ' // &
-            'freshly remeshed set: every check will remesh; raise it above the value logged ' // &
-            "after the remesh ('remesh: disorder after the remesh')")
-    end subroutine remesh_if_due
-
-    !> Remesh every fluid particle (sph_remesh_driver: refine, coarsen or same level) and
-    !> rebuild around them (collective). Refining or coarsening changes &domain dx in the
-    !> run's configuration (kernel, walls, time step follow) and regenerates the wall
-    !> particles at the new spacing; same level keeps them. Logs what it did.
-    subroutine simulation_remesh(sim, env, mode)
-        type(simulation_t), intent(inout) :: sim
-        type(mpi_env_t), intent(in) :: env
-        integer, intent(in) :: mode
-        call remesh_state(sim, env, mode, mode /= REMESH_SAME)
-    end subroutine simulation_remesh
-
-    !> The remesh itself; regenerate: new wall particles at the new spacing.
-    subroutine remesh_state(sim, env, mode, regenerate)
-        type(simulation_t), intent(inout) :: sim
-        type(mpi_env_t), intent(in) :: env
-        integer, intent(in) :: mode
-        logical, intent(in) :: regenerate
-        type(remesh_report_t) :: report
-        real(wp) :: dx_old, dx_new, h_new
-        integer :: stat, axis
-        logical :: periodic(3)
-        character(len=:), allocatable :: errmsg
-        integer, allocatable :: order(:)
-        type(particles_t) :: walls
-        integer(i8) :: base
-        integer :: k, c
-        integer, allocatable :: keep(:)
-
-        ! positions wrapped into the box and owned where they lie (the Verlet list may have
-        ! been reused since the last rebuild): the remeshing works on the periodic box
-        call synchronise(sim, env)
-        dx_old = sim%cfg%domain%dx
-        dx_new = dx_old * remesh_spacing_factor(mode)
-        periodic = .false.
-        do axis = 1, sim%cfg%domain%dimension
-            periodic(axis) = sim%cfg%domain%is_periodic(axis)
-        end do
-        if (mode /= REMESH_SAME) then
-            sim%cfg%domain%dx = dx_new
-            call physics_from_config(sim%cfg, sim%phys, stat, errmsg)
-            if (stat /= 0) call fatal_collective('remesh', errmsg)
-            sim%level_phys(0) = sim%phys
-            sim%solids = solids_from_config(sim%cfg)
-            sim%skin = 2.0_wp * sim%cfg%numerics%cfl * sim%phys%kernel%h
-            sim%list_skin = 0.1_wp * sim%phys%kernel%h
-        end if
-        h_new = sim%phys%kernel%h
-        call remesh_fluid(env, mode, sim%cfg%domain%dimension, dx_old, sim%cfg%domain%box_lo, &
-            sim%cfg%domain%box_hi, periodic, h_new, sim%p, report, stat, errmsg, sim%solids)
-        if (stat /= 0) call fatal_collective('remesh', errmsg)
-        if (regenerate) then
-            ! the fluid first (rank 0 holds it all), then the walls of the lattice at dx_new,
-            ! their ids after every fluid id (lattice ids are unique and rank independent)
-            keep = pack([(k, k = 1, sim%p%n_owned)], sim%p%kind(1:sim%p%n_owned) == KIND_FLUID)
-            call particles_gather(sim%p, keep)
-            sim%p%n_owned = size(keep)
-            sim%p%n_total = sim%p%n_owned
-            base = global_max_id(env, sim%p%id, sim%p%n_owned)
-            call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
-            call particles_init(walls, 1024, sim%cfg%domain%dimension)
-            call create_lattice_particles(sim%cfg, sim%phys, sim%solids, sim%domain, walls, &
-                walls_only=.true.)
-            keep = pack([(k, k = 1, walls%n_owned)], walls%kind(1:walls%n_owned) /= KIND_FLUID)
-            c = sim%p%n_owned
-            call particles_append(sim%p, walls, keep)
-            sim%p%id(c + 1:c + size(keep)) = base + sim%p%id(c + 1:c + size(keep))
-            call particles_free(walls)
-        end if
-        call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
-        call halo_setup(sim%halo, sim%domain, sim%phys%kernel%support + sim%skin)
-        call migrate(sim, env)
-        ! in id order before the cell sort, as on set-up: independent of the arrival order
-        allocate(order(sim%p%n_owned))
-        call id_order(sim%p%id, sim%p%n_owned, order)
-        call particles_gather(sim%p, order)
-        call simulation_prepare_neighbours(sim, env)
-        call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
-        sim%rates_stale = .true.
-        call log_remesh(report, mode, dx_old, dx_new, sim%time, sim%step)
-    end subroutine remesh_state
-
-    !> The log lines of one remesh (rank 0 prints).
-    subroutine log_remesh(report, mode, dx_old, dx_new, time, step)
-        type(remesh_report_t), intent(in) :: report
-        integer, intent(in) :: mode
-        real(wp), intent(in) :: dx_old, dx_new, time
-        integer(i8), intent(in) :: step
-        character(len=400) :: line
-        character(len=8), parameter :: names(0:3) = [character(len=8) :: 'none', 'refine', &
-            'coarsen', 'same']
-        real(wp) :: scale
-        write(line, '(a,es12.5,a,i0,a,i0,a,i0,a,es10.3,a,es10.3,a)') 'remesh ' // &
-            trim(names(mode)) // ' at t = ', time, ' s, step ', step, ': fluid particles ', &
-            report%n_before, ' -> ', report%n_after, ', dx ', dx_old, ' -> ', dx_new, ' m'
-        call log_info(trim(line))
-        write(line, '(a,es23.15,a,es23.15,a,es10.3,a)') '  mass ', report%mass_before, &
-            ' -> ', report%mass_after, ' kg (relative change ', &
-            abs(report%mass_after - report%mass_before) / max(abs(report%mass_before), &
-            tiny(1.0_wp)), ')'
-        call log_info(trim(line))
-        ! momentum change relative to the larger of |P| and (mass x largest speed scale 1)
-        scale = max(norm2(report%momentum_before), tiny(1.0_wp))
-        write(line, '(a,3es13.5,a,3es13.5,a,es10.3,a)') '  momentum ', report%momentum_before, &
-            ' ->', report%momentum_after, ' kg m/s (|change| / |before| ', &
-            norm2(report%momentum_after - report%momentum_before) / scale, ')'
-        call log_info(trim(line))
-        write(line, '(a,f10.3,a,f10.3,a,i0,a,i0,a,i0,a)') '  time ', report%seconds, ' s (', &
-            1.0e6_wp * report%seconds / real(max(report%n_before, report%n_after, 1_i8), wp), &
-            ' us per particle); irregular cells ', report%n_irregular, &
-            ', transfer fallbacks: mass ', report%n_mass_fallback, ', velocity ', &
-            report%n_velocity_fallback, ''
-        call log_info(trim(line))
-    end subroutine log_remesh
-
-    !> Offline remeshing (sphremesh --remesh MODE IN.h5 OUT.h5, collective, any rank count):
-    !> the particles of a snapshot or checkpoint IN, set up with the input stored in it, are
-    !> remeshed and written as a checkpoint OUT a run continues from (--restart OUT.h5 with
-    !> &domain dx set to the new spacing, which OUT records as its attribute 'dx'; the input
-    !> stored in OUT is IN's). The wall particles are always regenerated from the stored
-    !> input's walls and bodies at the new spacing (a snapshot lacks their wall geometry).
-    subroutine simulation_remesh_file(env, mode_name, in_path, out_path)
-        type(mpi_env_t), intent(in) :: env
-        character(len=*), intent(in) :: mode_name, in_path, out_path
-        type(simulation_t) :: sim
-        type(config_t) :: cfg
-        character(len=:), allocatable :: input_text, errmsg
-        integer :: stat, dimension, mode, n, k
-        integer(i8) :: n_rows, share, extra, offset, step
-        real(wp) :: time, dx_file
-        integer, allocatable :: keep(:)
-        character(len=32) :: number
-
-        mode = remesh_mode_code(mode_name)
-        if (mode <= REMESH_NONE) call fatal_collective('remesh', "unknown mode '" // &
-            mode_name // "' (refine, coarsen or same)")
-        call read_snapshot_header(env, in_path, time, step, dimension, n_rows, input_text, &
-            stat, errmsg)
-        if (stat /= 0) call fatal_collective('remesh', errmsg)
-        call config_parse(cfg, input_text, in_path // ' (stored input)', stat, errmsg)
-        if (stat /= 0) call fatal_collective('remesh', errmsg)
-        ! a file remeshed before carries its spacing; its stored input has the original dx
-        dx_file = stored_spacing(env, in_path)
-        if (dx_file > 0.0_wp) cfg%domain%dx = dx_file
-        call setup_common(sim, env, cfg)
-        share = n_rows / env%nranks
-        extra = mod(n_rows, int(env%nranks, i8))
-        n = int(share + merge(1_i8, 0_i8, env%rank < extra))
-        offset = env%rank * share + min(int(env%rank, i8), extra)
-        call read_snapshot_rows(env, in_path, sim%p, offset, n, stat, errmsg)
-        if (stat /= 0) call fatal_collective('remesh', errmsg)
-        sim%time = time
-        sim%step = step
-        ! walls are made anew at the new spacing: only the fluid is kept
-        keep = pack([(k, k = 1, sim%p%n_owned)], sim%p%kind(1:sim%p%n_owned) == KIND_FLUID)
-        call particles_gather(sim%p, keep)
-        sim%p%n_owned = size(keep)
-        sim%p%n_total = sim%p%n_owned
-        call log_info('remesh: ' // in_path // ' -> ' // out_path)
-        call remesh_state(sim, env, mode, .true.)
-        ! a verlet run continues from the rates of the remeshed state (simulation_restart)
-        if (sim%verlet) call evaluate_rates(sim, env)
-        call write_checkpoint(env, sim%p, sim%domain, out_path, sim%time, sim%step, &
-            sim%cfg%domain%dimension, code_version, input_text, '', stat, errmsg, &
-            sim%cfg%domain%dx)
-        if (stat /= 0) call fatal_collective('remesh', errmsg)
-        write(number, '(es15.8)') sim%cfg%domain%dx
-        call log_info('remesh: checkpoint ' // out_path // ' written; continue with ' // &
-            '--restart ' // out_path // ' and &domain dx = ' // trim(adjustl(number)))
-    end subroutine simulation_remesh_file
-
     !> Multi-resolution steps: conversions and new virtual particles in the transition zones
     !> (sph_transition_driver), then the halo and the neighbour list for the new set. The
     !> zones are made anew whenever the Verlet list is (migrate_and_rebuild: particles have
@@ -1143,46 +714,6 @@ contains
         sim%transition_seconds = sim%transition_seconds + (MPI_Wtime() - start)
         call timers_leave(sim%timers, previous)
     end subroutine update_transition_zones
-
-    !> Per level: real and virtual particles, conversions per step since the last call, real
-    !> mass and momentum, and the drift of the real mass from the start (collective; no
-    !> output with one level).
-    subroutine simulation_log_levels(sim, env)
-        type(simulation_t), intent(inout) :: sim
-        type(mpi_env_t), intent(in) :: env
-        integer(i8), allocatable :: n_real(:), n_virtual(:), became(:), left(:)
-        real(wp), allocatable :: mass(:), momentum(:, :), crossed(:)
-        real(wp) :: per_step
-        integer :: lv, n
-        character(len=320) :: line
-        if (.not. multires(sim)) return
-        n = sim%zones%n_levels
-        allocate(n_real(0:n - 1), n_virtual(0:n - 1), mass(0:n - 1), momentum(3, 0:n - 1))
-        call level_totals(env, sim%p, n, n_real, n_virtual, mass, momentum)
-        became = global_sum(env, sim%level_stats%became_real(0:n - 1))
-        left = global_sum(env, sim%level_stats%left(0:n - 1))
-        crossed = global_sum(env, [sim%level_stats%mass_in(0:n - 1), &
-            sim%level_stats%mass_out(0:n - 1)])
-        per_step = 1.0_wp / real(max(sim%level_stats%updates, 1_i8), wp)
-        do lv = 0, n - 1
-            write(line, '(a,i0,a,i0,a,i0,a,f8.3,a,f8.3,a,es16.9,a,es10.3,a,2es10.3,a,3es11.3)') &
-                '  level ', lv, ': ', n_real(lv), ' real, ', n_virtual(lv), &
-                ' virtual; per step ', real(became(lv + 1), wp) * per_step, ' became real, ', &
-                real(left(lv + 1), wp) * per_step, ' left; real mass ', mass(lv), &
-                ' kg (drift ', (mass(lv) - sim%first_level_mass(lv)) / &
-                sim%first_level_mass(lv), ', in/out since last line', crossed(lv + 1), &
-                crossed(n + lv + 1), '), momentum', momentum(:, lv)
-            call log_info(trim(line))
-        end do
-        write(line, '(a,es16.9,a,es10.3,a,i0,a,i0,a,i0)') '  all levels: real mass ', &
-            sum(mass), ' kg (drift ', (sum(mass) - sum(sim%first_level_mass)) / &
-            sum(sim%first_level_mass), '); interpolation fallbacks ', &
-            global_sum(env, sim%level_stats%fallbacks), ', clipped ', &
-            global_sum(env, sim%level_stats%clipped), ', virtuals without sources ', &
-            global_sum(env, sim%level_stats%empty)
-        call log_info(trim(line))
-        sim%level_stats = level_stats_t()
-    end subroutine simulation_log_levels
 
     !> Stop collectively when the run has become unhealthy (sph_health): non-finite values, a
     !> fluid particle inside a solid, a density outside the band, a collapsed time step. The
@@ -1251,108 +782,4 @@ contains
             before, ' -> ', after
         call log_info(trim(line))
     end subroutine simulation_rebalance
-
-    !> Relative L2 error of the velocity of all fluid particles against the analytic
-    !> reference named by &run analytic (sph_reference; collective). Negative when there is
-    !> none.
-    real(wp) function simulation_analytic_error(sim, env, steady) result(error)
-        type(simulation_t), intent(in) :: sim
-        type(mpi_env_t), intent(in) :: env
-        logical, intent(in), optional :: steady
-        logical :: against_steady
-        error = -1.0_wp
-        if (trim(sim%ref%name) == 'none') return
-        against_steady = .false.
-        if (present(steady)) against_steady = steady
-        error = relative_l2_from_sums(global_sum(env, &
-            relative_l2_error(sim%ref, sim%p, sim%time, against_steady)))
-    end function simulation_analytic_error
-
-    !> A snapshot, its line in the run's index and the XDMF series rewritten (rank 0).
-    subroutine simulation_write_snapshot(sim, env)
-        type(simulation_t), intent(inout) :: sim
-        type(mpi_env_t), intent(in) :: env
-        character(len=:), allocatable :: path, errmsg, xdmf_path
-        integer :: stat, k
-        integer(i8) :: rows
-        real(wp) :: error
-        character(len=160) :: line
-        call synchronise(sim, env)
-        path = snapshot_filename(trim(sim%cfg%output%output_dir), trim(sim%cfg%run%case_name), &
-            sim%step)
-        call write_snapshot(env, sim%p, path, sim%time, sim%step, sim%cfg%domain%dimension, &
-            code_version, sim%input_text, stat, errmsg, with_virtual=writes_virtual(sim))
-        if (stat /= 0) call fatal_collective('output', errmsg)
-        rows = global_sum(env, int(count(sim%p%kind(1:sim%p%n_owned) /= KIND_VIRTUAL .or. &
-            writes_virtual(sim)), i8))
-        k = index(path, '/', back=.true.)
-        sim%snapshot_index = sim%snapshot_index // xdmf_index_entry(sim%time, sim%step, rows, &
-            path(k + 1:))
-        xdmf_path = trim(sim%cfg%output%output_dir) // '/' // trim(sim%cfg%run%case_name) // &
-            '.xdmf'
-        stat = 0
-        if (env%rank == 0) call write_xdmf(xdmf_path, sim%snapshot_index, stat)
-        if (global_max(env, int(stat, i8)) /= 0) &
-            call fatal_collective('output', "cannot write '" // xdmf_path // "'")
-        write(line, '(a,es12.5,a)') 'snapshot t = ', sim%time, ' s: ' // path
-        if (trim(sim%ref%name) /= 'none' .and. sim%time > 0.0_wp) then
-            error = simulation_analytic_error(sim, env)
-            write(line, '(a,a,f8.4,a)') trim(line), ' (L2 error vs analytic ', 100.0_wp * error, &
-                ' %)'
-        end if
-        call log_info(trim(line))
-    end subroutine simulation_write_snapshot
-
-    !> Snapshots hold the virtual particles of transition zones only when asked
-    !> (&refinement write_virtual); checkpoints always do.
-    logical function writes_virtual(sim)
-        type(simulation_t), intent(in) :: sim
-        writes_virtual = sim%cfg%refinement%write_virtual
-    end function writes_virtual
-
-    !> Mean number of neighbours within the kernel support (of the particle's level) per
-    !> owned particle, every kind of particle and neighbour counted, each pair from both
-    !> sides (collective). The bench reports it with the pair interactions per second.
-    real(wp) function simulation_neighbours_per_particle(sim, env) result(mean)
-        type(simulation_t), intent(in) :: sim
-        type(mpi_env_t), intent(in) :: env
-        integer(i8) :: counts(2)
-        integer :: i, j, k
-        real(wp) :: r2max
-        counts = 0
-        do i = 1, sim%nl%n_query
-            r2max = sim%level_phys(sim%p%level(i))%kernel%support**2
-            do k = sim%nl%start(i), sim%nl%start(i + 1) - 1
-                j = sim%nl%index(k)
-                if (sum((sim%p%x(:, i) - sim%p%x(:, j))**2) < r2max) counts(1) = counts(1) + 1
-            end do
-        end do
-        counts(2) = sim%nl%n_query
-        counts = global_sum(env, counts)
-        mean = real(counts(1), wp) / real(max(counts(2), 1_i8), wp)
-    end function simulation_neighbours_per_particle
-
-    !> Smallest and largest fluid density over all ranks (collective).
-    function fluid_density_range(sim, env) result(range)
-        type(simulation_t), intent(in) :: sim
-        type(mpi_env_t), intent(in) :: env
-        real(wp) :: range(2)
-        range(1) = global_min(env, fluid_extreme(sim%p, .false.))
-        range(2) = global_max(env, fluid_extreme(sim%p, .true.))
-    end function fluid_density_range
-
-    pure real(wp) function fluid_extreme(p, want_max)
-        type(particles_t), intent(in) :: p
-        logical, intent(in) :: want_max
-        integer :: i
-        fluid_extreme = merge(-huge(1.0_wp), huge(1.0_wp), want_max)
-        do i = 1, p%n_owned
-            if (p%kind(i) /= KIND_FLUID) cycle
-            if (want_max) then
-                fluid_extreme = max(fluid_extreme, p%rho(i))
-            else
-                fluid_extreme = min(fluid_extreme, p%rho(i))
-            end if
-        end do
-    end function fluid_extreme
 end module sph_stepper

@@ -12,7 +12,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 
 PUBLIC = re.compile(r"^\s*public\s*::\s*((?:[^\n&!]|&[ \t]*\n)+)", re.MULTILINE | re.IGNORECASE)
 PROCEDURE = re.compile(
-    r"\s*(?:(?:pure|elemental|recursive|impure)\s+)*"
+    r"\s*(?:(?:pure|elemental|recursive|impure|module)\s+)*"
     r"(?:(?:integer|real|logical|character|type|class)\s*(?:\([^)]*\))?\s+)?"
     r"(subroutine|function)\s+(\w+)", re.IGNORECASE)
 

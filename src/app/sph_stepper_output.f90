@@ -1,0 +1,273 @@
+!> Reports and output files of a simulation: the forces on the solids (sum, CSV, log),
+!> snapshots with their XDMF index, checkpoints, the --check report, the levels' log lines,
+!> the neighbours per particle, the fluid density range and the error against the analytic
+!> reference.
+!> Split from sph_stepper so that each file holds one concern; the interfaces and their
+!> documentation are in sph_stepper.
+submodule (sph_stepper) sph_stepper_output
+    use sph_mpi_env, only: global_min
+    use sph_particles, only: KIND_VIRTUAL, ALL_FIELDS, pack_widths
+    use sph_reference, only: relative_l2_error, relative_l2_from_sums
+    use sph_snapshot, only: write_snapshot
+    use sph_checkpoint, only: write_checkpoint, checkpoint_filename
+    use sph_xdmf, only: xdmf_index_entry, write_xdmf
+    use sph_filesystem, only: delete_file, make_directories
+    implicit none
+
+contains
+
+    module procedure simulation_write_checkpoint
+        character(len=:), allocatable :: path, errmsg
+        integer :: stat
+        call synchronise(sim, env)
+        path = checkpoint_filename(trim(sim%cfg%output%output_dir), trim(sim%cfg%run%case_name), &
+            sim%step)
+        call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, &
+            sim%cfg%domain%dimension, &
+            code_version, sim%input_text, sim%snapshot_index, stat, errmsg, sim%cfg%domain%dx)
+        if (stat /= 0) call fatal_collective('checkpoint', errmsg)
+        if (all(sim%checkpoints /= path)) &
+            sim%checkpoints = [character(len=512) :: sim%checkpoints, path]
+        do while (size(sim%checkpoints) > sim%cfg%restart%checkpoints_kept)
+            if (env%rank == 0) call delete_file(trim(sim%checkpoints(1)))
+            sim%checkpoints = sim%checkpoints(2:)
+        end do
+        call log_info('checkpoint: ' // path)
+    end procedure simulation_write_checkpoint
+
+    module procedure simulation_solid_forces
+        forces = reshape(global_sum(env, reshape(sim%wall_forces, [size(sim%wall_forces)])), &
+            shape(sim%wall_forces))
+    end procedure simulation_solid_forces
+
+    module procedure simulation_write_forces
+        real(wp), allocatable :: forces(:, :, :)
+        character(len=:), allocatable :: path
+        character(len=512) :: line
+        integer :: unit, k, stat
+        logical :: exists
+        if (size(sim%solids%list) == 0) return
+        forces = simulation_solid_forces(sim, env)
+        path = trim(sim%cfg%output%output_dir) // '/' // trim(sim%cfg%run%case_name) // &
+            '_forces.csv'
+        stat = 0
+        if (env%rank == 0) then
+            ! a restart into a new output folder writes its forces before any snapshot
+            call make_directories(trim(sim%cfg%output%output_dir), stat)
+            inquire(file=path, exist=exists)
+            if (stat /= 0) then
+                continue
+            else if (fresh .or. .not. exists) then
+                open(newunit=unit, file=path, status='replace', action='write', iostat=stat)
+                if (stat == 0) write(unit, '(a)') 'time,step,body,Fx,Fy,Fz,Fx_pressure,' // &
+                    'Fy_pressure,Fz_pressure,Fx_viscous,Fy_viscous,Fz_viscous'
+            else
+                open(newunit=unit, file=path, status='old', position='append', &
+                    action='write', iostat=stat)
+            end if
+            if (stat == 0) then
+                do k = 1, size(forces, 3)
+                    write(line, '(es24.16,",",i0,",",a,9(",",es24.16))') sim%time, sim%step, &
+                        trim(sim%solids%list(k)%name), forces(:, 1, k) + forces(:, 2, k), &
+                        forces(:, 1, k), forces(:, 2, k)
+                    write(unit, '(a)') trim(line)
+                end do
+                close(unit)
+            end if
+        end if
+        if (global_max(env, int(stat, i8)) /= 0) &
+            call fatal_collective('output', "cannot write the forces to '" // path // "'")
+    end procedure simulation_write_forces
+
+    module procedure simulation_log_forces
+        real(wp), allocatable :: forces(:, :, :)
+        character(len=256) :: line
+        character(len=:), allocatable :: unit_text
+        integer :: k
+        if (size(sim%solids%list) == 0) return
+        forces = simulation_solid_forces(sim, env)
+        unit_text = merge(' N/m', ' N  ', sim%cfg%domain%dimension == 2)
+        do k = 1, size(forces, 3)
+            write(line, '(a,3es13.5,a,3es13.5,a)') 'force on ' // &
+                trim(sim%solids%list(k)%name) // ':', forces(:, 1, k) + forces(:, 2, k), &
+                trim(unit_text) // ' (viscous part', forces(:, 2, k), ')'
+            call log_info(trim(line))
+        end do
+    end procedure simulation_log_forces
+
+    module procedure simulation_check_report
+        type(timestep_limits_t) :: lim
+        integer :: level, max_level
+        integer(i8) :: counts(3), pairs
+        real(wp) :: bytes, limit_value
+        character(len=256) :: line
+        character(len=:), allocatable :: limiting
+        max_level = int(global_max(env, int(maxval(sim%p%level(1:sim%p%n_owned), &
+            mask=sim%p%n_owned > 0), i8)))
+        do level = 0, max(max_level, 0)
+            counts = global_sum(env, [ &
+                int(count(sim%p%kind(1:sim%p%n_owned) == KIND_FLUID .and. &
+                    sim%p%level(1:sim%p%n_owned) == level), i8), &
+                int(count(sim%p%kind(1:sim%p%n_owned) /= KIND_FLUID .and. &
+                    sim%p%level(1:sim%p%n_owned) == level), i8), &
+                int(count(sim%p%level(1:sim%p%n_owned) == level), i8)])
+            write(line, '(a,i0,a,i0,a,i0,a,i0,a)') 'check: level ', level, ': ', counts(3), &
+                ' particles (', counts(1), ' fluid, ', counts(2), ' wall)'
+            call log_info(trim(line))
+        end do
+        ! storage of every field of every slot (owned, ghosts, mirrors) and the neighbour list
+        pairs = global_sum(env, int(sim%nl%n_pairs, i8))
+        bytes = global_sum(env, real(sim%p%capacity, wp) * particle_bytes(sim%p)) + &
+            4.0_wp * real(pairs, wp)
+        write(line, '(a,f10.1,a,f8.1,a,i0,a)') 'check: memory about ', bytes / 1.0e6_wp, &
+            ' MB over all ranks (', bytes / max(1.0_wp, real(global_sum(env, &
+            int(sim%p%n_owned, i8)), wp)), ' bytes per particle, ', pairs, ' neighbour pairs)'
+        call log_info(trim(line))
+        call evaluate_rates(sim, env)
+        lim = stable_timestep(sim, env)
+        limit_value = lim%dt
+        limiting = 'CFL'
+        if (lim%viscous <= min(lim%cfl, lim%force)) limiting = 'viscous'
+        if (lim%force <= min(lim%cfl, lim%viscous)) limiting = 'force'
+        if (sim%cfg%numerics%fixed_dt > 0.0_wp) then
+            limit_value = sim%cfg%numerics%fixed_dt
+            limiting = '&numerics fixed_dt'
+        end if
+        write(line, '(a,es10.3,a,es10.3,a,es10.3,a,es10.3,a)') 'check: first time step ', &
+            limit_value, ' s, limited by ' // limiting // ' (CFL ', lim%cfl, ', viscous ', &
+            lim%viscous, ', force ', lim%force, ')'
+        call log_info(trim(line))
+        write(line, '(a,i0,a,es10.3,a)') 'check: about ', nint(max(0.0_wp, &
+            sim%cfg%run%t_end - sim%time) / limit_value, i8), ' steps to t_end = ', &
+            sim%cfg%run%t_end, ' s at that step'
+        call log_info(trim(line))
+    contains
+        real(wp) function particle_bytes(p)
+            type(particles_t), intent(in) :: p
+            integer :: n_real, n_int
+            call pack_widths(p, ALL_FIELDS, n_real, n_int)
+            particle_bytes = 8.0_wp * n_real + 8.0_wp * 1 + 4.0_wp * (n_int - 1)
+        end function particle_bytes
+    end procedure simulation_check_report
+
+    module procedure simulation_log_levels
+        integer(i8), allocatable :: n_real(:), n_virtual(:), became(:), left(:)
+        real(wp), allocatable :: mass(:), momentum(:, :), crossed(:)
+        real(wp) :: per_step
+        integer :: lv, n
+        character(len=320) :: line
+        if (.not. multires(sim)) return
+        n = sim%zones%n_levels
+        allocate(n_real(0:n - 1), n_virtual(0:n - 1), mass(0:n - 1), momentum(3, 0:n - 1))
+        call level_totals(env, sim%p, n, n_real, n_virtual, mass, momentum)
+        became = global_sum(env, sim%level_stats%became_real(0:n - 1))
+        left = global_sum(env, sim%level_stats%left(0:n - 1))
+        crossed = global_sum(env, [sim%level_stats%mass_in(0:n - 1), &
+            sim%level_stats%mass_out(0:n - 1)])
+        per_step = 1.0_wp / real(max(sim%level_stats%updates, 1_i8), wp)
+        do lv = 0, n - 1
+            write(line, '(a,i0,a,i0,a,i0,a,f8.3,a,f8.3,a,es16.9,a,es10.3,a,2es10.3,a,3es11.3)') &
+                '  level ', lv, ': ', n_real(lv), ' real, ', n_virtual(lv), &
+                ' virtual; per step ', real(became(lv + 1), wp) * per_step, ' became real, ', &
+                real(left(lv + 1), wp) * per_step, ' left; real mass ', mass(lv), &
+                ' kg (drift ', (mass(lv) - sim%first_level_mass(lv)) / &
+                sim%first_level_mass(lv), ', in/out since last line', crossed(lv + 1), &
+                crossed(n + lv + 1), '), momentum', momentum(:, lv)
+            call log_info(trim(line))
+        end do
+        write(line, '(a,es16.9,a,es10.3,a,i0,a,i0,a,i0)') '  all levels: real mass ', &
+            sum(mass), ' kg (drift ', (sum(mass) - sum(sim%first_level_mass)) / &
+            sum(sim%first_level_mass), '); interpolation fallbacks ', &
+            global_sum(env, sim%level_stats%fallbacks), ', clipped ', &
+            global_sum(env, sim%level_stats%clipped), ', virtuals without sources ', &
+            global_sum(env, sim%level_stats%empty)
+        call log_info(trim(line))
+        sim%level_stats = level_stats_t()
+    end procedure simulation_log_levels
+
+    module procedure simulation_analytic_error
+        logical :: against_steady
+        error = -1.0_wp
+        if (trim(sim%ref%name) == 'none') return
+        against_steady = .false.
+        if (present(steady)) against_steady = steady
+        error = relative_l2_from_sums(global_sum(env, &
+            relative_l2_error(sim%ref, sim%p, sim%time, against_steady)))
+    end procedure simulation_analytic_error
+
+    module procedure simulation_write_snapshot
+        character(len=:), allocatable :: path, errmsg, xdmf_path
+        integer :: stat, k
+        integer(i8) :: rows
+        real(wp) :: error
+        character(len=160) :: line
+        call synchronise(sim, env)
+        path = snapshot_filename(trim(sim%cfg%output%output_dir), trim(sim%cfg%run%case_name), &
+            sim%step)
+        call write_snapshot(env, sim%p, path, sim%time, sim%step, sim%cfg%domain%dimension, &
+            code_version, sim%input_text, stat, errmsg, with_virtual=writes_virtual(sim))
+        if (stat /= 0) call fatal_collective('output', errmsg)
+        rows = global_sum(env, int(count(sim%p%kind(1:sim%p%n_owned) /= KIND_VIRTUAL .or. &
+            writes_virtual(sim)), i8))
+        k = index(path, '/', back=.true.)
+        sim%snapshot_index = sim%snapshot_index // xdmf_index_entry(sim%time, sim%step, rows, &
+            path(k + 1:))
+        xdmf_path = trim(sim%cfg%output%output_dir) // '/' // trim(sim%cfg%run%case_name) // &
+            '.xdmf'
+        stat = 0
+        if (env%rank == 0) call write_xdmf(xdmf_path, sim%snapshot_index, stat)
+        if (global_max(env, int(stat, i8)) /= 0) &
+            call fatal_collective('output', "cannot write '" // xdmf_path // "'")
+        write(line, '(a,es12.5,a)') 'snapshot t = ', sim%time, ' s: ' // path
+        if (trim(sim%ref%name) /= 'none' .and. sim%time > 0.0_wp) then
+            error = simulation_analytic_error(sim, env)
+            write(line, '(a,a,f8.4,a)') trim(line), ' (L2 error vs analytic ', 100.0_wp * error, &
+                ' %)'
+        end if
+        call log_info(trim(line))
+    end procedure simulation_write_snapshot
+
+    !> Snapshots hold the virtual particles of transition zones only when asked
+    !> (&refinement write_virtual); checkpoints always do.
+    logical function writes_virtual(sim)
+        type(simulation_t), intent(in) :: sim
+        writes_virtual = sim%cfg%refinement%write_virtual
+    end function writes_virtual
+
+    module procedure simulation_neighbours_per_particle
+        integer(i8) :: counts(2)
+        integer :: i, j, k
+        real(wp) :: r2max
+        counts = 0
+        do i = 1, sim%nl%n_query
+            r2max = sim%level_phys(sim%p%level(i))%kernel%support**2
+            do k = sim%nl%start(i), sim%nl%start(i + 1) - 1
+                j = sim%nl%index(k)
+                if (sum((sim%p%x(:, i) - sim%p%x(:, j))**2) < r2max) counts(1) = counts(1) + 1
+            end do
+        end do
+        counts(2) = sim%nl%n_query
+        counts = global_sum(env, counts)
+        mean = real(counts(1), wp) / real(max(counts(2), 1_i8), wp)
+    end procedure simulation_neighbours_per_particle
+
+    module procedure fluid_density_range
+        range(1) = global_min(env, fluid_extreme(sim%p, .false.))
+        range(2) = global_max(env, fluid_extreme(sim%p, .true.))
+    end procedure fluid_density_range
+
+    pure real(wp) function fluid_extreme(p, want_max)
+        type(particles_t), intent(in) :: p
+        logical, intent(in) :: want_max
+        integer :: i
+        fluid_extreme = merge(-huge(1.0_wp), huge(1.0_wp), want_max)
+        do i = 1, p%n_owned
+            if (p%kind(i) /= KIND_FLUID) cycle
+            if (want_max) then
+                fluid_extreme = max(fluid_extreme, p%rho(i))
+            else
+                fluid_extreme = min(fluid_extreme, p%rho(i))
+            end if
+        end do
+    end function fluid_extreme
+end submodule sph_stepper_output

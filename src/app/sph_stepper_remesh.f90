@@ -1,0 +1,219 @@
+!> Remeshing during a run (remesh_if_due, simulation_remesh) and offline
+!> (simulation_remesh_file): when a remesh is due, the remesh of the state with the walls
+!> regenerated at the new spacing, and its log lines.
+!> Split from sph_stepper so that each file holds one concern; the interfaces and their
+!> documentation are in sph_stepper.
+submodule (sph_stepper) sph_stepper_remesh
+    use sph_logger, only: log_warn_counted
+    use sph_particles, only: particles_init, particles_free, particles_append
+    use sph_physics, only: physics_from_config
+    use sph_walls, only: solids_from_config
+    use sph_disorder_measure, only: nearest_distance_sums, disorder_from_sums
+    use sph_snapshot, only: read_snapshot_header, read_snapshot_rows
+    use sph_checkpoint, only: write_checkpoint, stored_spacing
+    use sph_remesh_driver, only: remesh_report_t, remesh_fluid, remesh_mode_code, &
+        remesh_spacing_factor, REMESH_NONE, REMESH_SAME
+    implicit none
+
+contains
+
+    module procedure remesh_if_due
+        logical :: due
+        integer :: mode, previous
+        real(wp) :: disorder
+        character(len=120) :: text
+        mode = remesh_mode_code(sim%cfg%remesh%mode)
+        if (mode == REMESH_NONE) return
+        due = .false.
+        if (sim%cfg%remesh%every_steps > 0) &
+            due = mod(sim%step, int(sim%cfg%remesh%every_steps, i8)) == 0
+        if (sim%time >= sim%next_remesh_time * (1.0_wp - 1.0e-12_wp)) then
+            due = .true.
+            do while (sim%next_remesh_time <= sim%time * (1.0_wp + 1.0e-12_wp))
+                sim%next_remesh_time = sim%next_remesh_time + sim%cfg%remesh%every_time
+            end do
+        end if
+        if (.not. due .and. sim%cfg%remesh%disorder_threshold > 0.0_wp) then
+            if (mod(sim%step, int(sim%cfg%remesh%disorder_check_steps, i8)) == 0) then
+                disorder = disorder_from_sums(global_sum(env, &
+                    nearest_distance_sums(sim%p, sim%nl)))
+                due = disorder > sim%cfg%remesh%disorder_threshold
+                if (due) then
+                    write(text, '(a, f8.5, a, f8.5)') 'remesh: disorder (CoV of the ' // &
+                        'nearest-neighbour distances) ', disorder, ' > threshold ', &
+                        sim%cfg%remesh%disorder_threshold
+                    call log_info(text)
+                end if
+            end if
+        end if
+        if (.not. due) return
+        call timers_enter(sim%timers, TIMER_OTHER, previous)
+        call simulation_remesh(sim, env, mode)
+        call timers_leave(sim%timers, previous)
+        if (sim%cfg%remesh%disorder_threshold <= 0.0_wp) return
+        ! a fresh set has some disorder of its own (0.13-0.17 on the cylinder flow): a
+        ! threshold below it would remesh at every check
+        disorder = disorder_from_sums(global_sum(env, nearest_distance_sums(sim%p, sim%nl)))
+        write(text, '(a, f8.5)') 'remesh: disorder after the remesh ', disorder
+        call log_info(text)
+        if (disorder > sim%cfg%remesh%disorder_threshold) call log_warn_counted( &
+            'disorder_threshold', '&remesh disorder_threshold is below the disorder of a ' // &
+            'freshly remeshed set: every check will remesh; raise it above the value logged ' // &
+            "after the remesh ('remesh: disorder after the remesh')")
+    end procedure remesh_if_due
+
+    module procedure simulation_remesh
+        call remesh_state(sim, env, mode, mode /= REMESH_SAME)
+    end procedure simulation_remesh
+
+    !> The remesh itself; regenerate: new wall particles at the new spacing.
+    subroutine remesh_state(sim, env, mode, regenerate)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        integer, intent(in) :: mode
+        logical, intent(in) :: regenerate
+        type(remesh_report_t) :: report
+        real(wp) :: dx_old, dx_new, h_new
+        integer :: stat, axis
+        logical :: periodic(3)
+        character(len=:), allocatable :: errmsg
+        integer, allocatable :: order(:)
+        type(particles_t) :: walls
+        integer(i8) :: base
+        integer :: k, c
+        integer, allocatable :: keep(:)
+
+        ! positions wrapped into the box and owned where they lie (the Verlet list may have
+        ! been reused since the last rebuild): the remeshing works on the periodic box
+        call synchronise(sim, env)
+        dx_old = sim%cfg%domain%dx
+        dx_new = dx_old * remesh_spacing_factor(mode)
+        periodic = .false.
+        do axis = 1, sim%cfg%domain%dimension
+            periodic(axis) = sim%cfg%domain%is_periodic(axis)
+        end do
+        if (mode /= REMESH_SAME) then
+            sim%cfg%domain%dx = dx_new
+            call physics_from_config(sim%cfg, sim%phys, stat, errmsg)
+            if (stat /= 0) call fatal_collective('remesh', errmsg)
+            sim%level_phys(0) = sim%phys
+            sim%solids = solids_from_config(sim%cfg)
+            sim%skin = 2.0_wp * sim%cfg%numerics%cfl * sim%phys%kernel%h
+            sim%list_skin = 0.1_wp * sim%phys%kernel%h
+        end if
+        h_new = sim%phys%kernel%h
+        call remesh_fluid(env, mode, sim%cfg%domain%dimension, dx_old, sim%cfg%domain%box_lo, &
+            sim%cfg%domain%box_hi, periodic, h_new, sim%p, report, stat, errmsg, sim%solids)
+        if (stat /= 0) call fatal_collective('remesh', errmsg)
+        if (regenerate) then
+            ! the fluid first (rank 0 holds it all), then the walls of the lattice at dx_new,
+            ! their ids after every fluid id (lattice ids are unique and rank independent)
+            keep = pack([(k, k = 1, sim%p%n_owned)], sim%p%kind(1:sim%p%n_owned) == KIND_FLUID)
+            call particles_gather(sim%p, keep)
+            sim%p%n_owned = size(keep)
+            sim%p%n_total = sim%p%n_owned
+            base = global_max_id(env, sim%p%id, sim%p%n_owned)
+            call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
+            call particles_init(walls, 1024, sim%cfg%domain%dimension)
+            call create_lattice_particles(sim%cfg, sim%phys, sim%solids, sim%domain, walls, &
+                walls_only=.true.)
+            keep = pack([(k, k = 1, walls%n_owned)], walls%kind(1:walls%n_owned) /= KIND_FLUID)
+            c = sim%p%n_owned
+            call particles_append(sim%p, walls, keep)
+            sim%p%id(c + 1:c + size(keep)) = base + sim%p%id(c + 1:c + size(keep))
+            call particles_free(walls)
+        end if
+        call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
+        call halo_setup(sim%halo, sim%domain, sim%phys%kernel%support + sim%skin)
+        call migrate(sim, env)
+        ! in id order before the cell sort, as on set-up: independent of the arrival order
+        allocate(order(sim%p%n_owned))
+        call id_order(sim%p%id, sim%p%n_owned, order)
+        call particles_gather(sim%p, order)
+        call simulation_prepare_neighbours(sim, env)
+        call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+        sim%rates_stale = .true.
+        call log_remesh(report, mode, dx_old, dx_new, sim%time, sim%step)
+    end subroutine remesh_state
+
+    !> The log lines of one remesh (rank 0 prints).
+    subroutine log_remesh(report, mode, dx_old, dx_new, time, step)
+        type(remesh_report_t), intent(in) :: report
+        integer, intent(in) :: mode
+        real(wp), intent(in) :: dx_old, dx_new, time
+        integer(i8), intent(in) :: step
+        character(len=400) :: line
+        character(len=8), parameter :: names(0:3) = [character(len=8) :: 'none', 'refine', &
+            'coarsen', 'same']
+        real(wp) :: scale
+        write(line, '(a,es12.5,a,i0,a,i0,a,i0,a,es10.3,a,es10.3,a)') 'remesh ' // &
+            trim(names(mode)) // ' at t = ', time, ' s, step ', step, ': fluid particles ', &
+            report%n_before, ' -> ', report%n_after, ', dx ', dx_old, ' -> ', dx_new, ' m'
+        call log_info(trim(line))
+        write(line, '(a,es23.15,a,es23.15,a,es10.3,a)') '  mass ', report%mass_before, &
+            ' -> ', report%mass_after, ' kg (relative change ', &
+            abs(report%mass_after - report%mass_before) / max(abs(report%mass_before), &
+            tiny(1.0_wp)), ')'
+        call log_info(trim(line))
+        ! momentum change relative to the larger of |P| and (mass x largest speed scale 1)
+        scale = max(norm2(report%momentum_before), tiny(1.0_wp))
+        write(line, '(a,3es13.5,a,3es13.5,a,es10.3,a)') '  momentum ', report%momentum_before, &
+            ' ->', report%momentum_after, ' kg m/s (|change| / |before| ', &
+            norm2(report%momentum_after - report%momentum_before) / scale, ')'
+        call log_info(trim(line))
+        write(line, '(a,f10.3,a,f10.3,a,i0,a,i0,a,i0,a)') '  time ', report%seconds, ' s (', &
+            1.0e6_wp * report%seconds / real(max(report%n_before, report%n_after, 1_i8), wp), &
+            ' us per particle); irregular cells ', report%n_irregular, &
+            ', transfer fallbacks: mass ', report%n_mass_fallback, ', velocity ', &
+            report%n_velocity_fallback, ''
+        call log_info(trim(line))
+    end subroutine log_remesh
+
+    module procedure simulation_remesh_file
+        type(simulation_t) :: sim
+        type(config_t) :: cfg
+        character(len=:), allocatable :: input_text, errmsg
+        integer :: stat, dimension, mode, n, k
+        integer(i8) :: n_rows, share, extra, offset, step
+        real(wp) :: time, dx_file
+        integer, allocatable :: keep(:)
+        character(len=32) :: number
+
+        mode = remesh_mode_code(mode_name)
+        if (mode <= REMESH_NONE) call fatal_collective('remesh', "unknown mode '" // &
+            mode_name // "' (refine, coarsen or same)")
+        call read_snapshot_header(env, in_path, time, step, dimension, n_rows, input_text, &
+            stat, errmsg)
+        if (stat /= 0) call fatal_collective('remesh', errmsg)
+        call config_parse(cfg, input_text, in_path // ' (stored input)', stat, errmsg)
+        if (stat /= 0) call fatal_collective('remesh', errmsg)
+        ! a file remeshed before carries its spacing; its stored input has the original dx
+        dx_file = stored_spacing(env, in_path)
+        if (dx_file > 0.0_wp) cfg%domain%dx = dx_file
+        call setup_common(sim, env, cfg)
+        share = n_rows / env%nranks
+        extra = mod(n_rows, int(env%nranks, i8))
+        n = int(share + merge(1_i8, 0_i8, env%rank < extra))
+        offset = env%rank * share + min(int(env%rank, i8), extra)
+        call read_snapshot_rows(env, in_path, sim%p, offset, n, stat, errmsg)
+        if (stat /= 0) call fatal_collective('remesh', errmsg)
+        sim%time = time
+        sim%step = step
+        ! walls are made anew at the new spacing: only the fluid is kept
+        keep = pack([(k, k = 1, sim%p%n_owned)], sim%p%kind(1:sim%p%n_owned) == KIND_FLUID)
+        call particles_gather(sim%p, keep)
+        sim%p%n_owned = size(keep)
+        sim%p%n_total = sim%p%n_owned
+        call log_info('remesh: ' // in_path // ' -> ' // out_path)
+        call remesh_state(sim, env, mode, .true.)
+        ! a verlet run continues from the rates of the remeshed state (simulation_restart)
+        if (sim%verlet) call evaluate_rates(sim, env)
+        call write_checkpoint(env, sim%p, sim%domain, out_path, sim%time, sim%step, &
+            sim%cfg%domain%dimension, code_version, input_text, '', stat, errmsg, &
+            sim%cfg%domain%dx)
+        if (stat /= 0) call fatal_collective('remesh', errmsg)
+        write(number, '(es15.8)') sim%cfg%domain%dx
+        call log_info('remesh: checkpoint ' // out_path // ' written; continue with ' // &
+            '--restart ' // out_path // ' and &domain dx = ' // trim(adjustl(number)))
+    end procedure simulation_remesh_file
+end submodule sph_stepper_remesh

@@ -1,0 +1,200 @@
+!> What the step in sph_stepper and its other submodules share: the set-up common to a
+!> start, a restart and offline remeshing, migration and halo refresh, synchronisation
+!> before output, rate evaluation and the time-step limit.
+!> They are private helpers of sph_stepper, yet live in a submodule: gfortran 12 (Debian
+!> bookworm's) gives a private procedure of a module local linkage, so a submodule compiled
+!> apart cannot call it (undefined reference at link, reproduced with a three-file program);
+!> a private separate module procedure defined in a submodule has global linkage. Their
+!> interfaces and documentation are in sph_stepper.
+submodule (sph_stepper) sph_stepper_shared
+    use sph_config, only: config_to_text
+    use sph_particles, only: particles_init, HALO_DENSITY, HALO_STRAIN
+    use sph_physics, only: physics_from_config, VISCOSITY_STRAIN_RATE, WALLS_MORRIS, &
+        WALL_PRESSURE_EXTRAPOLATED
+    use sph_walls, only: solids_from_config
+    use sph_domain, only: domain_create, migrate_particles
+    use sph_halo, only: halo_refresh
+    use sph_rates, only: compute_summation_density, compute_strain_rate, compute_rates, &
+        extrapolate_wall_density, local_max_speed, local_max_acceleration
+    use sph_timestep, only: timestep_limits
+    use sph_reference, only: reference_from_config
+    use sph_zones, only: zones_create
+    use sph_step_timers, only: TIMER_RATES, TIMER_IDLE
+    implicit none
+
+contains
+
+    module procedure setup_common
+        integer :: stat, axis
+        character(len=:), allocatable :: errmsg
+        logical :: periodic(3)
+
+        sim%cfg = cfg
+        sim%input_text = config_to_text(cfg)
+        sim%snapshot_index = ''
+        allocate(sim%checkpoints(0))
+        call physics_from_config(cfg, sim%phys, stat, errmsg)
+        if (stat /= 0) call fatal_collective('set-up', errmsg)
+        do axis = 1, cfg%domain%dimension
+            if (cfg%domain%is_periodic(axis) .and. &
+                cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis) < &
+                2.0_wp * sim%phys%kernel%support) then
+                call fatal_collective('set-up', &
+                    'a periodic box side must be at least twice the ' // &
+                    'kernel support radius (&domain box_lo/box_hi, &domain dx, ' // &
+                    '&numerics h_factor)')
+            end if
+        end do
+        sim%solids = solids_from_config(cfg)
+        sim%zones = zones_create(cfg, sim%solids)
+        call setup_level_physics(sim)
+        allocate(sim%wall_forces(3, 2, size(sim%solids%list)))
+        sim%wall_forces = 0.0_wp
+        call reference_from_config(cfg, sim%ref, stat, errmsg)
+        if (stat /= 0) call fatal_collective('set-up', errmsg)
+        periodic = .false.
+        do axis = 1, cfg%domain%dimension
+            periodic(axis) = cfg%domain%is_periodic(axis)
+        end do
+        call domain_create(sim%domain, env, cfg%domain%dimension, cfg%domain%box_lo, &
+            cfg%domain%box_hi, periodic)
+        call particles_init(sim%p, 1024, cfg%domain%dimension)
+        ! ghosts reach the support plus a skin that covers any motion within one step, plus
+        ! the neighbour-list skin that particles may use up over the steps between rebuilds
+        sim%skin = 2.0_wp * cfg%numerics%cfl * sim%phys%kernel%h
+        sim%list_skin = 0.1_wp * sim%phys%kernel%h
+        sim%time = 0.0_wp
+        sim%step = 0
+        sim%next_remesh_time = huge(1.0_wp)
+        if (cfg%remesh%every_time > 0.0_wp) sim%next_remesh_time = cfg%remesh%every_time
+        sim%verlet = trim(cfg%numerics%integrator) == 'verlet'
+        sim%rates_stale = .true.
+    end procedure setup_common
+
+    !> The physics of every resolution level: the kernel (and what scales with it) at the
+    !> level's spacing dx / 2^level; one sound speed for all (the largest), so the equation of
+    !> state is the same on both sides of an interface.
+    subroutine setup_level_physics(sim)
+        type(simulation_t), intent(inout) :: sim
+        type(config_t) :: level_cfg
+        integer :: lv, stat
+        character(len=:), allocatable :: errmsg
+        allocate(sim%level_phys(0:sim%zones%n_levels - 1))
+        sim%level_phys(0) = sim%phys
+        do lv = 1, sim%zones%n_levels - 1
+            level_cfg = sim%cfg
+            level_cfg%domain%dx = sim%cfg%domain%dx / 2.0_wp**lv
+            call physics_from_config(level_cfg, sim%level_phys(lv), stat, errmsg)
+            if (stat /= 0) call fatal_collective('set-up', errmsg)
+        end do
+        sim%phys%c = maxval(sim%level_phys(:)%c)
+        sim%level_phys(:)%c = sim%phys%c
+    end subroutine setup_level_physics
+
+    module procedure multires
+        multires = sim%zones%n_levels > 1
+    end procedure multires
+
+    module procedure refresh_ghosts
+        integer :: previous
+        call timers_enter(sim%timers, TIMER_HALO, previous)
+        call halo_refresh(sim%halo, env, sim%p, fields)
+        call timers_leave(sim%timers, previous)
+    end procedure refresh_ghosts
+
+    module procedure migrate
+        integer :: previous
+        call timers_enter(sim%timers, TIMER_HALO, previous)
+        call migrate_particles(sim%domain, env, sim%p)
+        call timers_leave(sim%timers, previous)
+    end procedure migrate
+
+    module procedure synchronise
+        if (sim%drift <= 0.0_wp) return
+        call migrate(sim, env)
+        call simulation_prepare_neighbours(sim, env)
+        call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+    end procedure synchronise
+
+    module procedure evaluate_rates
+        integer :: previous
+        call timers_enter(sim%timers, TIMER_RATES, previous)
+        if (sim%timers%current /= TIMER_IDLE) sim%timers%rate_evaluations = &
+            sim%timers%rate_evaluations + 1
+        if (multires(sim)) then
+            call evaluate_level_rates(sim, env)
+        else
+            call evaluate_uniform_rates(sim, env)
+        end if
+        call timers_leave(sim%timers, previous)
+    end procedure evaluate_rates
+
+    !> evaluate_rates with one level.
+    subroutine evaluate_uniform_rates(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        if (sim%phys%density_method == DENSITY_SUMMATION) then
+            call compute_summation_density(sim%phys, sim%p, sim%nl)
+            call refresh_ghosts(sim, env, HALO_DENSITY)
+            call build_mirrors(sim%phys, sim%solids, sim%p)
+        end if
+        call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+        if (sim%phys%walls == WALLS_MORRIS .and. &
+            sim%phys%wall_pressure == WALL_PRESSURE_EXTRAPOLATED) then
+            call extrapolate_wall_density(sim%phys, sim%p, sim%nl)
+            call refresh_ghosts(sim, env, HALO_DENSITY)
+            call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+        end if
+        if (sim%phys%viscosity == VISCOSITY_STRAIN_RATE) then
+            call compute_strain_rate(sim%phys, sim%p, sim%nl, sim%solids)
+            call refresh_ghosts(sim, env, HALO_STRAIN)
+            call build_mirrors(sim%phys, sim%solids, sim%p)
+        end if
+        sim%wall_forces = 0.0_wp
+        call compute_rates(sim%phys, sim%p, sim%nl, sim%solids, sim%wall_forces)
+    end subroutine evaluate_uniform_rates
+
+    !> evaluate_rates for several levels: every stage level by level with the level's physics
+    !> (the neighbour list pairs particles of one level only), one halo refresh per stage.
+    subroutine evaluate_level_rates(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        integer :: lv
+        if (sim%phys%density_method == DENSITY_SUMMATION) then
+            do lv = 0, sim%zones%n_levels - 1
+                call compute_summation_density(sim%level_phys(lv), sim%p, sim%nl, lv)
+            end do
+            call refresh_ghosts(sim, env, HALO_DENSITY)
+        end if
+        call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+        if (sim%phys%walls == WALLS_MORRIS .and. &
+            sim%phys%wall_pressure == WALL_PRESSURE_EXTRAPOLATED) then
+            do lv = 0, sim%zones%n_levels - 1
+                call extrapolate_wall_density(sim%level_phys(lv), sim%p, sim%nl, lv)
+            end do
+            call refresh_ghosts(sim, env, HALO_DENSITY)
+            call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+        end if
+        if (sim%phys%viscosity == VISCOSITY_STRAIN_RATE) then
+            do lv = 0, sim%zones%n_levels - 1
+                call compute_strain_rate(sim%level_phys(lv), sim%p, sim%nl, sim%solids, lv)
+            end do
+            call refresh_ghosts(sim, env, HALO_STRAIN)
+        end if
+        sim%wall_forces = 0.0_wp
+        do lv = 0, sim%zones%n_levels - 1
+            call compute_rates(sim%level_phys(lv), sim%p, sim%nl, sim%solids, sim%wall_forces, lv)
+        end do
+    end subroutine evaluate_level_rates
+
+    module procedure stable_timestep
+        real(wp) :: vmax, amax, h
+        vmax = global_max(env, local_max_speed(sim%p))
+        amax = global_max(env, local_max_acceleration(sim%p))
+        ! the finest level's smoothing length sets the step
+        h = sim%phys%kernel%h
+        if (multires(sim)) h = minval(sim%level_phys(:)%kernel%h)
+        lim = timestep_limits(h, sim%phys%c, vmax, sim%phys%nu, amax, &
+            sim%cfg%numerics%cfl, sim%cfg%numerics%viscous_safety, sim%cfg%numerics%force_safety)
+    end procedure stable_timestep
+end submodule sph_stepper_shared
