@@ -71,21 +71,33 @@ def body_measure(text, name, dim, extent):
     raise SystemExit(f"body_drag: no &body named '{name}' in the stored input")
 
 
-def sangani_acrivos_speed(text, dim, lo, hi, drag_per_length, nu, rho0):
-    """Mean fluid velocity of Stokes flow through a square array of cylinders that carries
-    this drag: Sangani & Acrivos (1982, Int. J. Multiphase Flow 8:193), dilute expansion for
-    a square array, F / (mu U_D) = 4 pi / (-ln(c)/2 - 0.738 + c - 0.887 c^2 + 2.038 c^3),
-    c the solid fraction and U_D the superficial velocity (cell average, bodies included);
-    the mean over the fluid is U_D / (1 - c). None unless a circle in a square 2D cell."""
-    if dim != 2 or abs((hi[0] - lo[0]) - (hi[1] - lo[1])) > 1e-12 * (hi[0] - lo[0]):
+def sangani_acrivos_speed(text, dim, lo, hi, drag, nu, rho0):
+    """Mean fluid velocity of Stokes flow through a periodic array of bodies that carries
+    this drag (per unit length in 2D), from Sangani & Acrivos' dilute expansions, U_D the
+    superficial velocity (cell average, bodies included), c the solid fraction; the mean over
+    the fluid is U_D / (1 - c). None unless one circle in a square cell or one sphere in a
+    cubic cell.
+      square array of cylinders (1982, Int. J. Multiphase Flow 8:193):
+        F / (mu U_D) = 4 pi / (-ln(c)/2 - 0.738 + c - 0.887 c^2 + 2.038 c^3);
+      simple cubic array of spheres (1982, Int. J. Multiphase Flow 8:343; Hasimoto 1959):
+        F / (6 pi mu a U_D) = 1 / (1 - 1.7601 x + x^3 - 1.5593 x^6 + 3.9799 x^8
+        - 3.0734 x^10), x = c^(1/3) (2.008 at c = 0.027 as Zick & Homsy's Table 2)."""
+    side = hi[0] - lo[0]
+    if any(abs((hi[a] - lo[a]) - side) > 1e-12 * side for a in range(dim)):
         return None
     shapes = re.findall(r"shape\s*=\s*'(\w+)'", text)
-    if shapes != ['circle']:
+    radius = numbers(values(text, 'radius'))[0] if len(shapes) == 1 else None
+    if dim == 2 and shapes == ['circle']:
+        c = math.pi * radius**2 / side**2
+        k = 4.0 * math.pi / (-0.5 * math.log(c) - 0.738 + c - 0.887 * c**2 + 2.038 * c**3)
+    elif dim == 3 and shapes == ['sphere']:
+        c = 4.0 / 3.0 * math.pi * radius**3 / side**3
+        x = c ** (1.0 / 3.0)
+        k = 6.0 * math.pi * radius / (1.0 - 1.7601 * x + x**3 - 1.5593 * x**6 +
+                                       3.9799 * x**8 - 3.0734 * x**10)
+    else:
         return None
-    radius = numbers(values(text, 'radius'))[0]
-    c = math.pi * radius**2 / (hi[0] - lo[0])**2
-    k = 4.0 * math.pi / (-0.5 * math.log(c) - 0.738 + c - 0.887 * c**2 + 2.038 * c**3)
-    return drag_per_length / (k * nu * rho0) / (1.0 - c)
+    return drag / (k * nu * rho0) / (1.0 - c)
 
 
 def mean_speed(output_dir, case, t_from, axis):
