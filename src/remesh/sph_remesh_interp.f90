@@ -236,8 +236,8 @@ contains
                 dd = 0.0_wp
                 dd(1:dim) = x_new(1:dim, a) - x_old(1:dim, jj)
                 d2 = sum(dd * dd)
-                if (d2 <= best_d2) then
-                    if (best /= 0 .and. d2 == best_d2) cycle
+                ! the first strictly nearer one, or the first one within reach
+                if (d2 < best_d2 .or. (best == 0 .and. d2 <= best_d2)) then
                     best_d2 = d2
                     best = a
                 end if
