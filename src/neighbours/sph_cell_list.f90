@@ -47,7 +47,7 @@ contains
         type(neighbour_list_t), intent(inout) :: nl
         integer, intent(in), optional :: level(:)
         real(wp), intent(in), optional :: level_radius(0:)
-        integer :: i, j, k, c(3), lo(3), hi(3), b, cz, row, first, last, pairs, lv, n_levels
+        integer :: i, j, k, lo(3), hi(3), b, cz, first, last, pairs, lv, n_levels
         real(wp) :: xi(3), d1, d2, d3
         real(wp), allocatable :: r2max(:)
         integer, allocatable :: members(:)
@@ -79,17 +79,11 @@ contains
             if (present(level)) lv = level(i)
             associate (grid => nl%grids(lv))
                 xi = x(:, i)
-                c = cell_coords(grid, xi)
-                lo = 1; hi = 1
-                lo(1:dim) = max(c(1:dim) - 1, 1)
-                hi(1:dim) = min(c(1:dim) + 1, grid%ncell(1:dim))
+                call scan_box(grid, xi, lo, hi)
                 do cz = lo(3), hi(3)
                     do b = lo(2), hi(2)
-                        row = grid%ncell(1) * ((b - 1) + grid%ncell(2) * (cz - 1))
-                        first = grid%cell_start(row + lo(1))
-                        last = grid%cell_start(row + hi(1) + 1) - 1
-                        if (pairs + last - first + 2 > size(nl%index)) call grow(nl%index, &
-                            max(pairs + last - first + 2, projected_pairs(pairs, i, n_query)))
+                        call row_run(grid, b, cz, lo, hi, first, last)
+                        call make_room(nl, pairs, last - first + 1, i, n_query)
                         do k = first, last
                             j = grid%sorted(k)
                             d1 = xi(1) - x(1, j)
@@ -118,7 +112,7 @@ contains
         integer, intent(in) :: n_query, n_cand, dim
         real(wp), intent(in) :: half_width
         type(neighbour_list_t), intent(inout) :: nl
-        integer :: i, j, k, c(3), lo(3), hi(3), b, cz, row, first, last, pairs
+        integer :: i, j, k, lo(3), hi(3), b, cz, first, last, pairs
         real(wp) :: xi(3), d(3)
 
         call reserve_rows(nl, n_query, 16)
@@ -133,17 +127,11 @@ contains
                 nl%start(i) = pairs + 1
                 xi = 0.0_wp
                 xi(1:dim) = xq(1:dim, i)
-                c = cell_coords(grid, xi)
-                lo = 1; hi = 1
-                lo(1:dim) = max(c(1:dim) - 1, 1)
-                hi(1:dim) = min(c(1:dim) + 1, grid%ncell(1:dim))
+                call scan_box(grid, xi, lo, hi)
                 do cz = lo(3), hi(3)
                     do b = lo(2), hi(2)
-                        row = grid%ncell(1) * ((b - 1) + grid%ncell(2) * (cz - 1))
-                        first = grid%cell_start(row + lo(1))
-                        last = grid%cell_start(row + hi(1) + 1) - 1
-                        if (pairs + last - first + 2 > size(nl%index)) call grow(nl%index, &
-                            max(pairs + last - first + 2, projected_pairs(pairs, i, n_query)))
+                        call row_run(grid, b, cz, lo, hi, first, last)
+                        call make_room(nl, pairs, last - first + 1, i, n_query)
                         do k = first, last
                             j = grid%sorted(k)
                             d = 0.0_wp
@@ -170,6 +158,37 @@ contains
         if (.not. allocated(nl%start)) allocate(nl%start(max(n_query + 1, 1)))
         if (.not. allocated(nl%index)) allocate(nl%index(max(64, per_query * n_query)))
     end subroutine reserve_rows
+
+    !> The cells a query at xi scans: its own and the neighbours along each axis, lo:hi.
+    pure subroutine scan_box(grid, xi, lo, hi)
+        type(cell_grid_t), intent(in) :: grid
+        real(wp), intent(in) :: xi(3)
+        integer, intent(out) :: lo(3), hi(3)
+        integer :: c(3)
+        c = cell_coords(grid, xi)
+        lo = 1; hi = 1
+        lo(1:grid%dim) = max(c(1:grid%dim) - 1, 1)
+        hi(1:grid%dim) = min(c(1:grid%dim) + 1, grid%ncell(1:grid%dim))
+    end subroutine scan_box
+
+    !> The cells lo(1):hi(1) of row (b, cz) are consecutive: one run first:last of sorted.
+    pure subroutine row_run(grid, b, cz, lo, hi, first, last)
+        type(cell_grid_t), intent(in) :: grid
+        integer, intent(in) :: b, cz, lo(3), hi(3)
+        integer, intent(out) :: first, last
+        integer :: row
+        row = grid%ncell(1) * ((b - 1) + grid%ncell(2) * (cz - 1))
+        first = grid%cell_start(row + lo(1))
+        last = grid%cell_start(row + hi(1) + 1) - 1
+    end subroutine row_run
+
+    !> index has room for `run` more candidates after `pairs` (plus the one written ahead).
+    subroutine make_room(nl, pairs, run, i, n_query)
+        type(neighbour_list_t), intent(inout) :: nl
+        integer, intent(in) :: pairs, run, i, n_query
+        if (pairs + run + 1 > size(nl%index)) call grow(nl%index, &
+            max(pairs + run + 1, projected_pairs(pairs, i, n_query)))
+    end subroutine make_room
 
     !> array holds `needed` entries, the first ones kept.
     subroutine grow(array, needed)
