@@ -8,10 +8,23 @@ the body force on the fluid, and its convergence with resolution.
 For each run: the force on the body along the body force (rows of <case>_forces.csv,
 averaged over the last `--fraction` of the run's time to smooth the pressure noise), the
 body force on the fluid, rho0 F times the fluid area (volume in 3D) of the box without the
-body, and their ratio in percent. With several runs (coarse to fine) the changes of the drag
-between successive resolutions and their ratios. Exits 1 when an imbalance exceeds
---max-imbalance percent, or when a change is not at most half the previous one with
---require-convergence.
+body, and their ratio in percent; the mean fluid velocity U and the lattice's resistance
+F_cell / (mu U_D), against Sangani & Acrivos where they apply.
+
+At steady state the drag equals rho0 F times the fluid area whatever the resolution (the
+force sums are antisymmetric), so its changes between resolutions measure how well each run
+has settled, not the discretisation. The quantity that carries the discretisation error is
+the drag per unit flow: the resistance. With several runs (coarse to fine) the script prints
+the changes of the drag, of the mean velocity and of the resistance between successive
+resolutions and their ratios. Exits 1 when an imbalance exceeds --max-imbalance percent, or,
+with --require-convergence, when a change of the resistance is not at most half the
+previous one.
+
+Body force and pressure gradient: a body force F on the fluid alone drives the same flow as
+a mean pressure gradient G = rho0 F (the fluid's equations are the same), but the linear
+pressure also pushes on the body, so in the pressure-driven problem of Sangani & Acrivos and
+of Darcy's law the force per body is G times the cell's area (volume), not the fluid's:
+F_cell = drag / (1 - c), c the solid fraction.
 """
 import argparse
 import csv
@@ -72,11 +85,12 @@ def body_measure(text, name, dim, extent):
 
 
 def sangani_acrivos_speed(text, dim, lo, hi, drag, nu, rho0):
-    """Mean fluid velocity of Stokes flow through a periodic array of bodies that carries
-    this drag (per unit length in 2D), from Sangani & Acrivos' dilute expansions, U_D the
-    superficial velocity (cell average, bodies included), c the solid fraction; the mean over
-    the fluid is U_D / (1 - c). None unless one circle in a square cell or one sphere in a
-    cubic cell.
+    """Mean fluid velocity of Stokes flow through a periodic array of bodies driven so that
+    each body carries the force F = drag / (1 - c) of the pressure-driven problem (per unit
+    length in 2D; see the module's docstring), from Sangani & Acrivos' dilute expansions, U_D
+    the superficial velocity (cell average, bodies included), c the solid fraction; the mean
+    over the fluid is U_D / (1 - c). None unless one circle in a square cell or one sphere in
+    a cubic cell.
       square array of cylinders (1982, Int. J. Multiphase Flow 8:193):
         F / (mu U_D) = 4 pi / (-ln(c)/2 - 0.738 + c - 0.887 c^2 + 2.038 c^3);
       simple cubic array of spheres (1982, Int. J. Multiphase Flow 8:343; Hasimoto 1959):
@@ -97,7 +111,7 @@ def sangani_acrivos_speed(text, dim, lo, hi, drag, nu, rho0):
                                        3.9799 * x**8 - 3.0734 * x**10)
     else:
         return None
-    return drag / (k * nu * rho0) / (1.0 - c)
+    return drag / (1.0 - c) / (k * nu * rho0) / (1.0 - c)
 
 
 def mean_speed(output_dir, case, t_from, axis):
@@ -126,7 +140,7 @@ def main():
     ap.add_argument('--require-convergence', action='store_true')
     args = ap.parse_args()
 
-    drags, speeds, failed = [], [], False
+    drags, speeds, resistances, failed = [], [], [], False
     for out in args.output_dirs:
         text = input_text(out, args.case)
         dim = int(numbers(values(text, 'dimension'))[0])
@@ -134,9 +148,11 @@ def main():
         hi = np.array(numbers(values(text, 'box_hi'))[:dim])
         dx = numbers(values(text, 'dx', 'domain'))[0]
         rho0 = numbers(values(text, 'rho0'))[0]
+        nu = numbers(values(text, 'nu'))[0]
         force = np.array(numbers(values(text, 'body_force'))[:dim])
         axis = int(np.argmax(np.abs(force)))
-        fluid = float(np.prod(hi - lo)) - body_measure(text, args.body, dim, hi - lo)
+        cell = float(np.prod(hi - lo))
+        fluid = cell - body_measure(text, args.body, dim, hi - lo)
         rows = []
         with open(os.path.join(out, f'{args.case}_forces.csv')) as f:
             for row in csv.DictReader(f):
@@ -152,24 +168,29 @@ def main():
         imbalance = 100.0 * (drag - expected) / expected
         drags.append(drag)
         speeds.append(mean_speed(out, args.case, (1.0 - args.fraction) * t_end, axis))
-        nu = numbers(values(text, 'nu'))[0]
+        porosity = fluid / cell
+        # drag per unit superficial flow of the pressure-driven problem (module docstring)
+        resistances.append(drag / porosity / (rho0 * nu * porosity * speeds[-1]))
         reference = sangani_acrivos_speed(text, dim, lo, hi, expected, nu, rho0)
         print(f'{out}: dx = {dx:g} m (L/{(hi[0] - lo[0]) / dx:.0f}), {len(last)} rows from t = '
               f'{float(last[0]["time"]):g} to {t_end:g} s, drag {drag:.6e}, rho0 F A_fluid '
               f'{expected:.6e} ({"N/m" if dim == 2 else "N"}), imbalance {imbalance:+.3f} %, '
               f'mean fluid velocity {speeds[-1]:.6e} m/s' +
               ('' if reference is None else f' (Sangani & Acrivos {reference:.6e}, '
-               f'{100 * (speeds[-1] - reference) / reference:+.2f} %)'))
+               f'{100 * (speeds[-1] - reference) / reference:+.2f} %)') +
+              f', resistance F_cell / (mu U_D) {resistances[-1]:.5g}'
+              f'{"" if dim == 2 else " m"}')
         if args.max_imbalance is not None and abs(imbalance) > args.max_imbalance:
             failed = True
-    for name, series in (('drag', drags), ('mean velocity', speeds)):
+    for name, series in (('drag', drags), ('mean velocity', speeds),
+                         ('resistance', resistances)):
         for k in range(1, len(series)):
             change = series[k] - series[k - 1]
             line = f'{name} change {k}: {change:+.4e} ({100 * change / series[k]:+.3f} %)'
             if k >= 2:
                 ratio = abs(change) / abs(series[k - 1] - series[k - 2])
                 line += f', ratio to the previous change {ratio:.3f}'
-                if args.require_convergence and name == 'drag' and ratio > 0.5:
+                if args.require_convergence and name == 'resistance' and ratio > 0.5:
                     failed = True
             print(line)
     if failed:
