@@ -22,7 +22,17 @@ module sph_walls
     implicit none
     private
     public :: solids_from_config, wall_layers, wall_lattice_ranges, wall_site, build_mirrors
-    public :: body_surface_sites, clear_of_solids
+    public :: body_surface_sites, clear_of_solids, fluid_position, FLUID_CLEARANCE
+
+    !> Least distance, in spacings, of a fluid particle of the initial lattice from a solid,
+    !> that of the first row at a plane wall. The sites a curved surface cuts lie at any
+    !> distance s from it; those closer are pushed out to it (fluid_position), not dropped: a
+    !> site stands for the fluid from s - dx/2 to s + dx/2, so dropping the sites with s < c
+    !> leaves on average a layer c dx thick without fluid over the surface, which the flow
+    !> feels as slip (dropped below dx/2, the creeping flow through the sphere lattice ran
+    !> 18.6 % faster than Sangani & Acrivos' at L/20; pushed, 2.5 %). Pushed only to dx/4, a
+    !> fluid particle entered the L/100 cylinder at t = 2381 s.
+    real(wp), parameter :: FLUID_CLEARANCE = 0.5_wp
 
 contains
 
@@ -185,12 +195,9 @@ contains
         end do
     end subroutine wall_lattice_ranges
 
-    !> Is the lattice site x at least dx/2 from every solid, so that a fluid particle there
-    !> has room (its dx^d cell) clear of the walls? The sites of a lattice that a curved
-    !> surface cuts lie at any distance from it: measured on the L/25 cylinder lattice, with
-    !> fluid particles at 0.1 dx from the surface one was drawn into the body within 750 s;
-    !> without them the run reached its steady state (6000 s). Box faces keep their first row
-    !> at exactly dx/2.
+    !> Is the lattice site x at least FLUID_CLEARANCE dx from every solid, so that a fluid
+    !> particle there does not sit on a wall? See FLUID_CLEARANCE. Box faces keep their first
+    !> row at exactly dx/2.
     pure logical function clear_of_solids(solids, x, dx) result(clear)
         type(solids_t), intent(in) :: solids
         real(wp), intent(in) :: x(3), dx
@@ -198,10 +205,38 @@ contains
         clear = .true.
         if (.not. allocated(solids%list)) return
         do k = 1, size(solids%list)
-            if (solid_distance(solids%list(k), x) < 0.5_wp * dx * (1.0_wp - 1.0e-6_wp)) &
+            if (solid_distance(solids%list(k), x) < FLUID_CLEARANCE * dx * (1.0_wp - 1.0e-6_wp)) &
                 clear = .false.
         end do
     end function clear_of_solids
+
+    !> Where the fluid particle of the lattice site x (outside every solid) goes: x itself
+    !> when it is at least FLUID_CLEARANCE dx from every solid, else x pushed out along the
+    !> nearest solid's normal to that distance, so that the fluid still fills the geometry up
+    !> to the surface on average (FLUID_CLEARANCE). clear = .false. when the pushed point is
+    !> still too close to a solid (two surfaces less than a spacing apart): no particle.
+    pure subroutine fluid_position(solids, x, dx, y, clear)
+        type(solids_t), intent(in) :: solids
+        real(wp), intent(in) :: x(3), dx
+        real(wp), intent(out) :: y(3)
+        logical, intent(out) :: clear
+        integer :: k, nearest
+        real(wp) :: d, d_min
+        y = x
+        clear = clear_of_solids(solids, y, dx)
+        if (clear) return
+        nearest = 0
+        d_min = huge(1.0_wp)
+        do k = 1, size(solids%list)
+            d = solid_distance(solids%list(k), y)
+            if (d < d_min) then
+                d_min = d
+                nearest = k
+            end if
+        end do
+        y = y + (FLUID_CLEARANCE * dx - d_min) * solid_normal(solids%list(nearest), y)
+        clear = clear_of_solids(solids, y, dx)
+    end subroutine fluid_position
 
     !> Is the point x (a lattice site) inside a solid, and if so which (the one it lies
     !> deepest inside; ties, as on a corner diagonal, go to the lower number), the normal into

@@ -10,7 +10,7 @@ module sph_initial
     use sph_particles, only: particles_t, particles_reserve, KIND_FLUID, KIND_WALL
     use sph_physics, only: physics_t, WALLS_MORRIS, WALLS_REPULSIVE, WALLS_REPULSIVE_MIRROR
     use sph_walls, only: wall_layers, wall_lattice_ranges, wall_site, body_surface_sites, &
-        clear_of_solids
+        fluid_position
     use sph_solids, only: solids_t, solid_velocity, solid_distance, SOLID_PLANE
     use sph_domain, only: domain_t, domain_owner
     use sph_eos, only: eos_pressure
@@ -32,7 +32,7 @@ contains
         logical, intent(in), optional :: walls_only
         integer :: n_inside(3), first(3), last(3), idx(3), i, j, k, solid, layers, axis
         integer(i8) :: n_fluid_total, n_ext(3), linear
-        real(wp) :: xi(3), normal(3), distance, mass, fluid_mass
+        real(wp) :: xi(3), xf(3), normal(3), distance, mass, fluid_mass
         logical :: site, make_fluid
 
         n_inside = 1
@@ -57,10 +57,10 @@ contains
                     if (domain_owner(domain, xi) /= domain%rank) cycle
                     ! the lattice minus the solids (bodies inside the box, their surfaces
                     ! included): the same rule that makes the wall sites
-                    if (.not. fluid_site(xi)) cycle
+                    if (.not. fluid_site(xi, xf)) cycle
                     linear = 1 + (i - 1) + int(n_inside(1), i8) * ((j - 1) + int(n_inside(2), &
                         i8) * (k - 1))
-                    call add_particle(xi, linear, KIND_FLUID, [0.0_wp, 0.0_wp, 0.0_wp], 0.0_wp, &
+                    call add_particle(xf, linear, KIND_FLUID, [0.0_wp, 0.0_wp, 0.0_wp], 0.0_wp, &
                         [0.0_wp, 0.0_wp, 0.0_wp], 0)
                     p%m(p%n_owned) = fluid_mass
                     ! odd lattice index along an axis: its bit set (sph_transition: the sites
@@ -103,15 +103,19 @@ contains
 
     contains
 
-        !> A site that gets a fluid particle: outside every solid, its surface included, and
-        !> at least dx/2 from it (clear_of_solids).
-        logical function fluid_site(x)
+        !> A site that gets a fluid particle: outside every solid, its surface included; the
+        !> particle goes to y, at least FLUID_CLEARANCE dx from every solid (fluid_position).
+        logical function fluid_site(x, y)
             real(wp), intent(in) :: x(3)
-            logical :: inside
+            real(wp), intent(out) :: y(3)
+            logical :: inside, clear
             integer :: s_index
             real(wp) :: s_normal(3), s_distance
             call wall_site(solids, x, cfg%domain%dx, inside, s_index, s_normal, s_distance)
-            fluid_site = .not. inside .and. clear_of_solids(solids, x, cfg%domain%dx)
+            y = x
+            clear = .false.
+            if (.not. inside) call fluid_position(solids, x, cfg%domain%dx, y, clear)
+            fluid_site = clear
         end function fluid_site
 
         logical function has_bodies()
@@ -126,11 +130,12 @@ contains
         !> Fluid sites of the whole lattice (every rank counts all of them: no MPI here).
         integer(i8) function count_fluid_sites() result(n)
             integer :: a, b, c
+            real(wp) :: y(3)
             n = 0
             do c = 1, n_inside(3)
                 do b = 1, n_inside(2)
                     do a = 1, n_inside(1)
-                        if (fluid_site(lattice_position([a, b, c]))) n = n + 1
+                        if (fluid_site(lattice_position([a, b, c]), y)) n = n + 1
                     end do
                 end do
             end do
