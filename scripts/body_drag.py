@@ -16,9 +16,10 @@ force sums are antisymmetric), so its changes between resolutions measure how we
 has settled, not the discretisation. The quantity that carries the discretisation error is
 the drag per unit flow: the resistance. With several runs (coarse to fine) the script prints
 the changes of the drag, of the mean velocity and of the resistance between successive
-resolutions and their ratios. Exits 1 when an imbalance exceeds --max-imbalance percent, or,
-with --require-convergence, when a change of the resistance is not at most half the
-previous one.
+resolutions and their ratios. Exits 1 when an imbalance exceeds --max-imbalance percent, when the
+mean fluid velocity is farther than --max-reference-deviation percent from Sangani &
+Acrivos' (for creeping flow), or, with --require-convergence, when a change of the
+resistance is not at most half the previous one.
 
 Body force and pressure gradient: a body force F on the fluid alone drives the same flow as
 a mean pressure gradient G = rho0 F (the fluid's equations are the same), but the linear
@@ -138,6 +139,9 @@ def main():
                     help='average the rows of the last fraction of the run time')
     ap.add_argument('--max-imbalance', type=float, default=None, help='percent')
     ap.add_argument('--require-convergence', action='store_true')
+    ap.add_argument('--max-reference-deviation', type=float, default=None,
+                    help="percent: fail when the mean fluid velocity is farther from Sangani & "
+                         "Acrivos' (only for creeping flow, where their expansion holds)")
     args = ap.parse_args()
 
     drags, speeds, resistances, failed = [], [], [], False
@@ -181,6 +185,10 @@ def main():
               f', resistance F_cell / (mu U_D) {resistances[-1]:.5g}'
               f'{"" if dim == 2 else " m"}')
         if args.max_imbalance is not None and abs(imbalance) > args.max_imbalance:
+            failed = True
+        if args.max_reference_deviation is not None and (
+                reference is None or
+                abs(100 * (speeds[-1] - reference) / reference) > args.max_reference_deviation):
             failed = True
     for name, series in (('drag', drags), ('mean velocity', speeds),
                          ('resistance', resistances)):
