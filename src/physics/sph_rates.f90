@@ -245,7 +245,7 @@ contains
         type(solids_t), intent(in), optional :: solids   !< for Morris walls of curved bodies
         real(wp), intent(inout), optional :: wall_forces(:, :, :)
         integer, intent(in), optional :: level
-        integer :: i, k, j, a, s, m, n_near
+        integer :: i, k, j, a, s, m, n_near, n_fluid, n_other
         real(wp) :: d(3), r2, grad(3), vij(3), vvisc(3), pterm, coeff, beta, xi(3)
         real(wp) :: drho, dv(3), de, rho_i, mu_i, q, sterm(3), eps_i(3, 3), eps_j(3, 3)
         real(wp) :: support2, m_i, m_j, vg, f(3), e_pair, visc_scale
@@ -255,7 +255,10 @@ contains
         real(wp), allocatable :: grad_near(:), visc_near(:)
         real(wp), allocatable :: state(:, :)  !< v, m, p/rho^2, 1/rho of all particles
         logical, allocatable :: paired(:)     !< owned fluid of this level: pair terms shared
-        logical :: repulsive_walls, morris_walls, strain_viscosity, tvf
+        logical, allocatable :: flows(:)      !< fluid, real or virtual (moves_with_flow)
+        real(wp), allocatable :: handed(:, :) !< rates handed on to j by morris_fluid_pairs
+        integer, allocatable :: other(:)      !< the partners of i that are not fluid
+        logical :: repulsive_walls, morris_walls, strain_viscosity, tvf, fast_fluid
         real(wp), allocatable :: vol_sq(:)   !< transport velocity: (m/rho)^2 of all particles
 
         support2 = phys%kernel%support**2
@@ -266,7 +269,7 @@ contains
         k = 0
         if (p%n_owned > 0) k = maxval(nl%start(2:p%n_owned + 1) - nl%start(1:p%n_owned))
         allocate(near(k), d_near(3, k), r_near(k), r2_near(k), dwdr_near(k), grad_near(k), &
-            visc_near(k))
+            visc_near(k), other(k))
         ! what a pair reads of j, packed: one or two cache lines per neighbour
         allocate(state(6, p%n_total), paired(p%n_total))
         do j = 1, p%n_total
@@ -275,6 +278,8 @@ contains
             state(5, j) = p%p(j) / p%rho(j)**2
             state(6, j) = 1.0_wp / p%rho(j)
         end do
+        flows = moves_with_flow(p%kind(1:p%n_total))
+        allocate(handed(5, p%n_owned), source=0.0_wp)
         paired(:) = .false.
         do i = 1, p%n_owned
             if (other_level(p, i, level)) cycle
@@ -285,6 +290,7 @@ contains
         end do
         tvf = phys%transport_velocity
         p_b = phys%transport_pressure
+        fast_fluid = .not. (tvf .or. strain_viscosity)
         if (tvf) then
             allocate(vol_sq(p%n_total))
             vol_sq(:) = (p%m(1:p%n_total) / p%rho(1:p%n_total))**2
@@ -316,8 +322,12 @@ contains
             ! A_i = rho_i v_i (vt_i - v_i): (A_i . grad W)_a = a_i(a) (dv_transport_i . grad W)
             if (tvf) a_i = rho_i * p%v(:, i)
             ! the pairs within the support not yet evaluated from the other side, then dW/dr
-            ! of all of them in one kernel call
+            ! of all of them in one kernel call. Without the transport velocity and the
+            ! strain-rate viscosity the fluid partners come first (n_fluid of them) and go
+            ! through morris_fluid_pairs; the others (walls, mirrors) follow in list order
+            ! through the general loop.
             n_near = 0
+            n_other = 0
             do k = nl%start(i), nl%start(i + 1) - 1
                 j = nl%index(k)
                 if (j < i) then
@@ -326,12 +336,25 @@ contains
                 d = xi - p%x(:, j)
                 r2 = d(1)**2 + d(2)**2 + d(3)**2
                 if (r2 <= 0.0_wp .or. r2 >= support2) cycle
+                if (fast_fluid .and. .not. flows(j)) then
+                    n_other = n_other + 1
+                    other(n_other) = j
+                    cycle
+                end if
                 n_near = n_near + 1
                 near(n_near) = j
                 d_near(:, n_near) = d
                 r2_near(n_near) = r2
-                r_near(n_near) = sqrt(r2)
             end do
+            n_fluid = merge(n_near, 0, fast_fluid)
+            do m = 1, n_other
+                j = other(m)
+                n_near = n_near + 1
+                near(n_near) = j
+                d_near(:, n_near) = xi - p%x(:, j)
+                r2_near(n_near) = sum(d_near(:, n_near)**2)
+            end do
+            r_near(1:n_near) = sqrt(r2_near(1:n_near))
             call phys%kernel%dwdr_many(r_near(1:n_near), dwdr_near(1:n_near))
             ! grad W = d * grad_near; Morris' viscous factor r dW/dr / (r^2 + eta^2): one
             ! vectorisable loop, so the divisions are not paid pair by pair
@@ -339,7 +362,9 @@ contains
                 grad_near(m) = dwdr_near(m) / r_near(m)
                 visc_near(m) = r_near(m) * dwdr_near(m) / (r2_near(m) + phys%eta2)
             end do
-            do m = 1, n_near
+            if (n_fluid > 0) call morris_fluid_pairs(n_fluid, near, d_near, grad_near, &
+                visc_near, i, visc_scale, state, paired, drho, dv, de, handed)
+            do m = n_fluid + 1, n_near
                 j = near(m)
                 d = d_near(:, m)
                 r2 = r2_near(m)
@@ -423,7 +448,10 @@ contains
             if (tvf) p%dvdt_background(:, i) = p%dvdt_background(:, i) + dvb
         end do
         do i = 1, p%n_owned
-            if (paired(i)) p%dvdt(:, i) = p%dvdt(:, i) + phys%body_force
+            if (.not. paired(i)) cycle
+            p%drhodt(i) = p%drhodt(i) + handed(1, i)
+            p%dvdt(:, i) = p%dvdt(:, i) + handed(2:4, i) + phys%body_force
+            p%dedt(i) = p%dedt(i) + handed(5, i)
         end do
 
     contains
@@ -458,6 +486,57 @@ contains
             p%drhodt(iw) = drho
         end subroutine wall_density_rate
     end subroutine compute_rates
+
+    !> The pairs of owned particle i with its first n fluid partners (real or virtual, within
+    !> the support, dW/dr / r in grad_w and Morris' r dW/dr / (r^2 + eta^2) in visc_f) under
+    !> Morris' viscosity without the transport velocity: the bulk of a step's pair work, in a
+    !> loop of its own over plain arrays with one test per pair (does j take its share), so
+    !> the compiler keeps i's sums in registers and knows every stride. The terms are those
+    !> of compute_rates' general loop for such a pair:
+    !>   f = -(p_i/rho_i^2 + p_j/rho_j^2) grad W + nu s (1/rho_i + 1/rho_j) visc_f v_ij,
+    !>   e = 1/2 (p_i/rho_i^2 + p_j/rho_j^2) v_ij . grad W - 1/2 nu s (...) visc_f |v_ij|^2,
+    !> per unit mass of the partner; state holds v, m, p/rho^2, 1/rho of every particle.
+    subroutine morris_fluid_pairs(n, near, d, grad_w, visc_f, i, visc_scale, state, paired, &
+            drho, dv, de, handed)
+        integer, intent(in) :: n, near(n), i
+        real(wp), intent(in) :: d(3, *), grad_w(n), visc_f(n), visc_scale
+        real(wp), intent(in) :: state(6, *)
+        logical, intent(in) :: paired(*)
+        real(wp), intent(inout) :: drho, dv(3), de
+        real(wp), intent(inout) :: handed(5, *)   !< d rho/dt, d v/dt, d e/dt handed on
+        integer :: m, j
+        real(wp) :: vi(3), m_i, pi_term, inv_rho_i, grad(3), vij(3), vg, pterm, coeff
+        real(wp) :: f(3), e_pair, m_j, sum_rho, sum_v(3), sum_e
+        vi = state(1:3, i)
+        m_i = state(4, i)
+        pi_term = state(5, i)
+        inv_rho_i = state(6, i)
+        sum_rho = 0.0_wp
+        sum_v = 0.0_wp
+        sum_e = 0.0_wp
+        do m = 1, n
+            j = near(m)
+            grad = d(:, m) * grad_w(m)
+            vij = vi - state(1:3, j)
+            vg = vij(1) * grad(1) + vij(2) * grad(2) + vij(3) * grad(3)
+            pterm = pi_term + state(5, j)
+            coeff = visc_scale * (inv_rho_i + state(6, j)) * visc_f(m)
+            f = coeff * vij - pterm * grad
+            e_pair = 0.5_wp * pterm * vg - 0.5_wp * coeff * (vij(1)**2 + vij(2)**2 + vij(3)**2)
+            m_j = state(4, j)
+            sum_rho = sum_rho + m_j * vg
+            sum_v = sum_v + m_j * f
+            sum_e = sum_e + m_j * e_pair
+            if (paired(j)) then
+                handed(1, j) = handed(1, j) + m_i * vg
+                handed(2:4, j) = handed(2:4, j) - m_i * f
+                handed(5, j) = handed(5, j) + m_i * e_pair
+            end if
+        end do
+        drho = drho + sum_rho
+        dv = dv + sum_v
+        de = de + sum_e
+    end subroutine morris_fluid_pairs
 
     pure function tensor(s) result(t)
         real(wp), intent(in) :: s(6)
