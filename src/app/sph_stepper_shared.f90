@@ -15,7 +15,7 @@ submodule (sph_stepper) sph_stepper_shared
     use sph_domain, only: domain_create, migrate_particles
     use sph_halo, only: halo_refresh
     use sph_rates, only: compute_summation_density, compute_strain_rate, compute_rates, &
-        extrapolate_wall_density, local_max_speed, local_max_acceleration
+        extrapolate_wall_density, local_motion_maxima
     use sph_timestep, only: timestep_limits
     use sph_reference, only: reference_from_config
     use sph_zones, only: zones_create
@@ -188,13 +188,12 @@ contains
     end subroutine evaluate_level_rates
 
     module procedure stable_timestep
-        real(wp) :: vmax, amax, h
-        vmax = global_max(env, local_max_speed(sim%p))
-        amax = global_max(env, local_max_acceleration(sim%p))
+        real(wp) :: maxima(2), h
+        maxima = global_max(env, local_motion_maxima(sim%p))
         ! the finest level's smoothing length sets the step
         h = sim%phys%kernel%h
         if (multires(sim)) h = minval(sim%level_phys(:)%kernel%h)
-        lim = timestep_limits(h, sim%phys%c, vmax, sim%phys%nu, amax, &
+        lim = timestep_limits(h, sim%phys%c, maxima(1), sim%phys%nu, maxima(2), &
             sim%cfg%numerics%cfl, sim%cfg%numerics%viscous_safety, sim%cfg%numerics%force_safety)
     end procedure stable_timestep
 end submodule sph_stepper_shared

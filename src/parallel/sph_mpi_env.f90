@@ -25,7 +25,7 @@ module sph_mpi_env
         module procedure global_sum_wp, global_sum_i8, global_sum_wp_array, global_sum_i8_array
     end interface
     interface global_max
-        module procedure global_max_wp, global_max_i8
+        module procedure global_max_wp, global_max_i8, global_max_wp_array
     end interface
     interface global_min
         module procedure global_min_wp
@@ -145,6 +145,16 @@ contains
         call MPI_Allreduce(x, s, 1, mpi_wp, MPI_MAX, env%comm, ierr)
         call check_mpi(ierr, 'global_max')
     end function global_max_wp
+
+    !> Element-wise maxima over all ranks in one reduction.
+    function global_max_wp_array(env, x) result(s)
+        type(mpi_env_t), intent(in) :: env
+        real(wp), intent(in) :: x(:)
+        real(wp) :: s(size(x))
+        integer :: ierr
+        call MPI_Allreduce(x, s, size(x), mpi_wp, MPI_MAX, env%comm, ierr)
+        call check_mpi(ierr, 'global_max')
+    end function global_max_wp_array
 
     function global_max_i8(env, x) result(s)
         type(mpi_env_t), intent(in) :: env

@@ -42,7 +42,7 @@ module sph_rates
     private
     public :: update_pressure, extrapolate_wall_density, compute_summation_density
     public :: compute_strain_rate, compute_rates
-    public :: local_max_speed, local_max_acceleration, morris_beta
+    public :: local_max_speed, local_motion_maxima, morris_beta
 
     !> strain(6) components: xx, yy, zz, xy, xz, yz
     integer, parameter :: voigt(3, 3) = reshape([1, 4, 5, 4, 2, 6, 5, 6, 3], [3, 3])
@@ -256,7 +256,7 @@ contains
         real(wp), allocatable :: state(:, :)  !< v, m, p/rho^2, 1/rho of all particles
         logical, allocatable :: paired(:)     !< owned fluid of this level: pair terms shared
         logical, allocatable :: flows(:)      !< fluid, real or virtual (moves_with_flow)
-        real(wp), allocatable :: handed(:, :) !< rates handed on to j by morris_fluid_pairs
+        real(wp), allocatable :: handed(:, :) !< rates handed on by morris_fluid_pairs
         integer, allocatable :: other(:)      !< the partners of i that are not fluid
         logical :: repulsive_walls, morris_walls, strain_viscosity, tvf, fast_fluid
         real(wp), allocatable :: vol_sq(:)   !< transport velocity: (m/rho)^2 of all particles
@@ -279,7 +279,7 @@ contains
             state(6, j) = 1.0_wp / p%rho(j)
         end do
         flows = moves_with_flow(p%kind(1:p%n_total))
-        allocate(handed(5, p%n_owned), source=0.0_wp)
+        allocate(handed(5, p%n_total), source=0.0_wp)
         paired(:) = .false.
         do i = 1, p%n_owned
             if (other_level(p, i, level)) cycle
@@ -363,7 +363,7 @@ contains
                 visc_near(m) = r_near(m) * dwdr_near(m) / (r2_near(m) + phys%eta2)
             end do
             if (n_fluid > 0) call morris_fluid_pairs(n_fluid, near, d_near, grad_near, &
-                visc_near, i, visc_scale, state, paired, drho, dv, de, handed)
+                visc_near, i, visc_scale, state, drho, dv, de, handed)
             do m = n_fluid + 1, n_near
                 j = near(m)
                 d = d_near(:, m)
@@ -490,20 +490,21 @@ contains
     !> The pairs of owned particle i with its first n fluid partners (real or virtual, within
     !> the support, dW/dr / r in grad_w and Morris' r dW/dr / (r^2 + eta^2) in visc_f) under
     !> Morris' viscosity without the transport velocity: the bulk of a step's pair work, in a
-    !> loop of its own over plain arrays with one test per pair (does j take its share), so
-    !> the compiler keeps i's sums in registers and knows every stride. The terms are those
-    !> of compute_rates' general loop for such a pair:
+    !> loop of its own over plain arrays without a test, so the compiler keeps i's sums in
+    !> registers and knows every stride. The terms are those of compute_rates' general loop
+    !> for such a pair:
     !>   f = -(p_i/rho_i^2 + p_j/rho_j^2) grad W + nu s (1/rho_i + 1/rho_j) visc_f v_ij,
     !>   e = 1/2 (p_i/rho_i^2 + p_j/rho_j^2) v_ij . grad W - 1/2 nu s (...) visc_f |v_ij|^2,
     !> per unit mass of the partner; state holds v, m, p/rho^2, 1/rho of every particle.
-    subroutine morris_fluid_pairs(n, near, d, grad_w, visc_f, i, visc_scale, state, paired, &
-            drho, dv, de, handed)
+    !> (A variant computing two components in 2D ran no faster.)
+    subroutine morris_fluid_pairs(n, near, d, grad_w, visc_f, i, visc_scale, state, drho, dv, &
+            de, handed)
         integer, intent(in) :: n, near(n), i
         real(wp), intent(in) :: d(3, *), grad_w(n), visc_f(n), visc_scale
         real(wp), intent(in) :: state(6, *)
-        logical, intent(in) :: paired(*)
         real(wp), intent(inout) :: drho, dv(3), de
-        real(wp), intent(inout) :: handed(5, *)   !< d rho/dt, d v/dt, d e/dt handed on
+        !> d rho/dt, d v/dt, d e/dt handed on to j; the caller keeps those of owned fluid
+        real(wp), intent(inout) :: handed(5, *)
         integer :: m, j
         real(wp) :: vi(3), m_i, pi_term, inv_rho_i, grad(3), vij(3), vg, pterm, coeff
         real(wp) :: f(3), e_pair, m_j, sum_rho, sum_v(3), sum_e
@@ -527,11 +528,9 @@ contains
             sum_rho = sum_rho + m_j * vg
             sum_v = sum_v + m_j * f
             sum_e = sum_e + m_j * e_pair
-            if (paired(j)) then
-                handed(1, j) = handed(1, j) + m_i * vg
-                handed(2:4, j) = handed(2:4, j) - m_i * f
-                handed(5, j) = handed(5, j) + m_i * e_pair
-            end if
+            handed(1, j) = handed(1, j) + m_i * vg
+            handed(2:4, j) = handed(2:4, j) - m_i * f
+            handed(5, j) = handed(5, j) + m_i * e_pair
         end do
         drho = drho + sum_rho
         dv = dv + sum_v
@@ -553,23 +552,26 @@ contains
     !> log).
     pure real(wp) function local_max_speed(p)
         type(particles_t), intent(in) :: p
-        integer :: i
-        local_max_speed = 0.0_wp
-        do i = 1, p%n_owned
-            ! the transport velocity, which moves the particles (v when it is off)
-            if (moves_with_flow(p%kind(i))) &
-                local_max_speed = max(local_max_speed, norm2(p%v(:, i) + p%dv_transport(:, i)))
-        end do
+        real(wp) :: maxima(2)
+        maxima = local_motion_maxima(p)
+        local_max_speed = maxima(1)
     end function local_max_speed
 
-    !> Largest acceleration magnitude among owned fluid particles (force limit, eq. 4.3).
-    pure real(wp) function local_max_acceleration(p)
+    !> The largest speed (CFL limit) and acceleration magnitude (force limit, eq. 4.3) among
+    !> owned fluid particles, real or virtual, in one pass. The speed is that of the
+    !> transport velocity, which moves the particles (v when it is off).
+    pure function local_motion_maxima(p) result(maxima)
         type(particles_t), intent(in) :: p
+        real(wp) :: maxima(2)
+        real(wp) :: speed2, accel2
         integer :: i
-        local_max_acceleration = 0.0_wp
+        speed2 = 0.0_wp
+        accel2 = 0.0_wp
         do i = 1, p%n_owned
-            if (moves_with_flow(p%kind(i))) &
-                local_max_acceleration = max(local_max_acceleration, norm2(p%dvdt(:, i)))
+            if (.not. moves_with_flow(p%kind(i))) cycle
+            speed2 = max(speed2, sum((p%v(:, i) + p%dv_transport(:, i))**2))
+            accel2 = max(accel2, sum(p%dvdt(:, i)**2))
         end do
-    end function local_max_acceleration
+        maxima = sqrt([speed2, accel2])
+    end function local_motion_maxima
 end module sph_rates
