@@ -47,6 +47,15 @@ module sph_rates
     !> strain(6) components: xx, yy, zz, xy, xz, yz
     integer, parameter :: voigt(3, 3) = reshape([1, 4, 5, 4, 2, 6, 5, 6, 3], [3, 3])
 
+    !> compute_rates' arrays over all particles, kept from call to call and grown when short:
+    !> allocated afresh at every call, their ~100 bytes per particle came as new pages from
+    !> the system at 10^6 particles (page faults and zeroing in every rate evaluation).
+    type :: rates_scratch_t
+        real(wp), allocatable :: state(:, :), handed(:, :)
+        logical, allocatable :: paired(:), flows(:)
+    end type rates_scratch_t
+    type(rates_scratch_t), save :: kept_scratch
+
 contains
 
     !> Pressure from density by the equation of state (plus the background pressure), for
@@ -271,15 +280,15 @@ contains
         allocate(near(k), d_near(3, k), r_near(k), r2_near(k), dwdr_near(k), grad_near(k), &
             visc_near(k), other(k))
         ! what a pair reads of j, packed: one or two cache lines per neighbour
-        allocate(state(6, p%n_total), paired(p%n_total))
+        call take_scratch(p%n_total, state, handed, paired, flows)
         do j = 1, p%n_total
             state(1:3, j) = p%v(:, j)
             state(4, j) = p%m(j)
             state(5, j) = p%p(j) / p%rho(j)**2
             state(6, j) = 1.0_wp / p%rho(j)
         end do
-        flows = moves_with_flow(p%kind(1:p%n_total))
-        allocate(handed(5, p%n_total), source=0.0_wp)
+        flows(1:p%n_total) = moves_with_flow(p%kind(1:p%n_total))
+        handed(:, 1:p%n_total) = 0.0_wp
         paired(:) = .false.
         do i = 1, p%n_owned
             if (other_level(p, i, level)) cycle
@@ -453,6 +462,10 @@ contains
             p%dvdt(:, i) = p%dvdt(:, i) + handed(2:4, i) + phys%body_force
             p%dedt(i) = p%dedt(i) + handed(5, i)
         end do
+        call move_alloc(state, kept_scratch%state)
+        call move_alloc(handed, kept_scratch%handed)
+        call move_alloc(paired, kept_scratch%paired)
+        call move_alloc(flows, kept_scratch%flows)
 
     contains
 
@@ -486,6 +499,26 @@ contains
             p%drhodt(iw) = drho
         end subroutine wall_density_rate
     end subroutine compute_rates
+
+    !> compute_rates' kept arrays (kept_scratch), at least n particles long; the caller hands
+    !> them back with move_alloc.
+    subroutine take_scratch(n, state, handed, paired, flows)
+        integer, intent(in) :: n
+        real(wp), allocatable, intent(out) :: state(:, :), handed(:, :)
+        logical, allocatable, intent(out) :: paired(:), flows(:)
+        integer :: length
+        call move_alloc(kept_scratch%state, state)
+        call move_alloc(kept_scratch%handed, handed)
+        call move_alloc(kept_scratch%paired, paired)
+        call move_alloc(kept_scratch%flows, flows)
+        if (allocated(paired)) then
+            if (size(paired) >= n) return
+            deallocate(state, handed, paired, flows)
+        end if
+        ! 10 % more than asked, so particles arriving over the run do not regrow it each time
+        length = max(1, n + n / 10)
+        allocate(state(6, length), handed(5, length), paired(length), flows(length))
+    end subroutine take_scratch
 
     !> The pairs of owned particle i with its first n fluid partners (real or virtual, within
     !> the support, dW/dr / r in grad_w and Morris' r dW/dr / (r^2 + eta^2) in visc_f) under
