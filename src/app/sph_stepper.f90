@@ -24,7 +24,7 @@ module sph_stepper
     use sph_domain, only: domain_t, domain_partition, domain_imbalance
     use sph_halo, only: halo_t, halo_setup, halo_build
     use sph_cell_list, only: neighbour_list_t, build_neighbour_list, cell_sort_order
-    use sph_rates, only: update_pressure
+    use sph_rates, only: update_pressure, release_rates_scratch
     use sph_shifting, only: shifting_diffusion, shift_particles
     use sph_timestep, only: timestep_limits_t
     use sph_integrator, only: save_step_start, advance, max_step_displacement, verlet_drift, &
@@ -458,6 +458,8 @@ contains
         integer, allocatable :: order(:)
         integer :: previous, in_search
         call timers_enter(sim%timers, TIMER_SEARCH, previous)
+        ! the pair loop's kept arrays would add to the peaks of the gather and of output
+        call release_rates_scratch()
         allocate(order(sim%p%n_owned))
         call cell_sort_order(sim%p%x, sim%p%n_owned, sim%p%dim, sim%phys%kernel%support, order)
         call particles_gather(sim%p, order)

@@ -42,14 +42,16 @@ module sph_rates
     private
     public :: update_pressure, extrapolate_wall_density, compute_summation_density
     public :: compute_strain_rate, compute_rates
-    public :: local_max_speed, local_motion_maxima, morris_beta
+    public :: local_max_speed, local_motion_maxima, morris_beta, release_rates_scratch
 
     !> strain(6) components: xx, yy, zz, xy, xz, yz
     integer, parameter :: voigt(3, 3) = reshape([1, 4, 5, 4, 2, 6, 5, 6, 3], [3, 3])
 
     !> compute_rates' arrays over all particles, kept from call to call and grown when short:
     !> allocated afresh at every call, their ~100 bytes per particle came as new pages from
-    !> the system at 10^6 particles (page faults and zeroing in every rate evaluation).
+    !> the system at 10^6 particles (page faults and zeroing in every rate evaluation). The
+    !> driver releases them at each rebuild (release_rates_scratch), so they do not add to
+    !> the memory peaks of migration, rebuilds and output.
     type :: rates_scratch_t
         real(wp), allocatable :: state(:, :), handed(:, :)
         logical, allocatable :: paired(:), flows(:)
@@ -500,13 +502,20 @@ contains
         end subroutine wall_density_rate
     end subroutine compute_rates
 
+    !> Free compute_rates' kept arrays (the next evaluation allocates them again).
+    subroutine release_rates_scratch()
+        if (allocated(kept_scratch%state)) deallocate(kept_scratch%state)
+        if (allocated(kept_scratch%handed)) deallocate(kept_scratch%handed)
+        if (allocated(kept_scratch%paired)) deallocate(kept_scratch%paired)
+        if (allocated(kept_scratch%flows)) deallocate(kept_scratch%flows)
+    end subroutine release_rates_scratch
+
     !> compute_rates' kept arrays (kept_scratch), at least n particles long; the caller hands
     !> them back with move_alloc.
     subroutine take_scratch(n, state, handed, paired, flows)
         integer, intent(in) :: n
         real(wp), allocatable, intent(out) :: state(:, :), handed(:, :)
         logical, allocatable, intent(out) :: paired(:), flows(:)
-        integer :: length
         call move_alloc(kept_scratch%state, state)
         call move_alloc(kept_scratch%handed, handed)
         call move_alloc(kept_scratch%paired, paired)
@@ -515,9 +524,7 @@ contains
             if (size(paired) >= n) return
             deallocate(state, handed, paired, flows)
         end if
-        ! 10 % more than asked, so particles arriving over the run do not regrow it each time
-        length = max(1, n + n / 10)
-        allocate(state(6, length), handed(5, length), paired(length), flows(length))
+        allocate(state(6, max(1, n)), handed(5, max(1, n)), paired(max(1, n)), flows(max(1, n)))
     end subroutine take_scratch
 
     !> The pairs of owned particle i with its first n fluid partners (real or virtual, within
