@@ -6,7 +6,7 @@ module sph_health
     use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
     use sph_kinds, only: wp, i8
     use sph_particles, only: particles_t, KIND_FLUID
-    use sph_solids, only: solids_t, deepest_solid
+    use sph_solids, only: solids_t, deepest_solid, solid_distance, SOLID_PLANE
     use sph_health_input, only: health_input_t
     implicit none
     private
@@ -36,9 +36,21 @@ contains
         type(solids_t), intent(in) :: solids
         type(particles_t), intent(in) :: p
         type(health_problem_t), intent(out) :: problem
-        integer :: i, k
+        integer :: i, k, n_solids
         character(len=96) :: text
+        logical, allocatable :: plane(:)
+        real(wp), allocatable :: normal(:, :), point(:, :)
         problem%what = ''
+        ! planes tested inline (a dot product per particle and plane: every step, every
+        ! particle), bodies through solid_distance; the deepest solid named only on a hit
+        n_solids = 0
+        if (allocated(solids%list)) n_solids = size(solids%list)
+        allocate(plane(n_solids), normal(3, n_solids), point(3, n_solids))
+        do k = 1, n_solids
+            plane(k) = solids%list(k)%shape == SOLID_PLANE
+            normal(:, k) = solids%list(k)%normal
+            point(:, k) = solids%list(k)%point
+        end do
         do i = 1, p%n_owned
             if (.not. (all(ieee_is_finite(p%x(:, i))) .and. all(ieee_is_finite(p%v(:, i))) &
                 .and. ieee_is_finite(p%rho(i)))) then
@@ -46,8 +58,8 @@ contains
                 return
             end if
             if (p%kind(i) /= KIND_FLUID) cycle
-            k = deepest_solid(solids, p%x(:, i), 0.0_wp)
-            if (k > 0) then
+            if (inside_a_solid(p%x(:, i))) then
+                k = deepest_solid(solids, p%x(:, i), 0.0_wp)
                 call found(HEALTH_IN_SOLID, 'a fluid particle inside the solid ' // &
                     trim(solids%list(k)%name))
                 return
@@ -60,6 +72,21 @@ contains
             end if
         end do
     contains
+        !> x lies inside some solid (the test of deepest_solid(solids, x, 0) > 0).
+        logical function inside_a_solid(x)
+            real(wp), intent(in) :: x(3)
+            integer :: kk
+            inside_a_solid = .true.
+            do kk = 1, n_solids
+                if (plane(kk)) then
+                    if (dot_product(normal(:, kk), x - point(:, kk)) < 0.0_wp) return
+                else
+                    if (solid_distance(solids%list(kk), x) < 0.0_wp) return
+                end if
+            end do
+            inside_a_solid = .false.
+        end function inside_a_solid
+
         subroutine found(code, what)
             integer, intent(in) :: code
             character(len=*), intent(in) :: what
