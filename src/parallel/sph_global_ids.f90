@@ -12,6 +12,7 @@
 module sph_global_ids
     use mpi_f08
     use sph_kinds, only: i8
+    use sph_key_sort, only: sort_by_keys
     use sph_errors, only: check_mpi, fatal_abort
     use sph_mpi_env, only: mpi_env_t, mpi_i8, global_max, global_sum, exclusive_scan_i8
     implicit none
@@ -223,48 +224,13 @@ contains
         key_less = a(1) < b(1) .or. (a(1) == b(1) .and. a(2) < b(2))
     end function key_less
 
-    !> perm(1:n) such that keys(:, perm(1:n)) is in increasing lexicographic order
-    !> (bottom-up merge sort, O(n log n), stable).
+    !> perm(1:n) such that keys(:, perm(1:n)) is in increasing lexicographic order (stable).
     subroutine sort_keys(keys, n, perm)
         integer(i8), intent(in) :: keys(:, :)
         integer, intent(in) :: n
         integer, intent(out) :: perm(:)
-        integer, allocatable :: work(:)
-        integer :: width, lo, mid, hi, i, j, k
-
-        do i = 1, n
-            perm(i) = i
-        end do
-        allocate(work(max(n, 1)))
-        width = 1
-        do while (width < n)
-            lo = 1
-            do while (lo <= n)
-                mid = min(lo + width - 1, n)
-                hi = min(lo + 2 * width - 1, n)
-                i = lo
-                j = mid + 1
-                do k = lo, hi
-                    if (i <= mid .and. j <= hi) then
-                        if (key_less(keys(:, perm(j)), keys(:, perm(i)))) then
-                            work(k) = perm(j)
-                            j = j + 1
-                        else
-                            work(k) = perm(i)
-                            i = i + 1
-                        end if
-                    else if (i <= mid) then
-                        work(k) = perm(i)
-                        i = i + 1
-                    else
-                        work(k) = perm(j)
-                        j = j + 1
-                    end if
-                end do
-                lo = lo + 2 * width
-            end do
-            perm(1:n) = work(1:n)
-            width = 2 * width
-        end do
+        integer :: i
+        perm(1:n) = [(i, i = 1, n)]
+        call sort_by_keys(keys(:, 1:n), perm(1:n))
     end subroutine sort_keys
 end module sph_global_ids

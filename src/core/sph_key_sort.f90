@@ -1,6 +1,7 @@
 !> Stable merge sort of indices by integer keys compared lexicographically (signed), shared by
 !> the remeshing rules whose results must not depend on the storage order (sph_refine,
-!> sph_coarsen). An unsigned 64-bit key u is given as ieor(u, ibset(0_i8, 63)).
+!> sph_coarsen) and the parallel sort of the global ids (sph_global_ids). An unsigned 64-bit
+!> key u is given as ieor(u, ibset(0_i8, 63)).
 module sph_key_sort
     use sph_kinds, only: i8
     implicit none
