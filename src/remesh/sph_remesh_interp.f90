@@ -69,17 +69,20 @@ contains
         integer, intent(out), optional :: n_mass_fallback, n_velocity_fallback
         !> an isolated old particle's one pair: negligible in its target's velocity moments
         real(wp), parameter :: ISOLATED_WEIGHT = 1.0e-30_wp, ISOLATED_REACH = 4.0_wp
-        ! per new particle: the velocity interpolant's moments (s0, s1, s2) and the sums
-        ! sum u v (va) and sum u d v^T (vb) that give the corrected interpolant in one pass
-        real(wp), allocatable :: en(:), vol(:), s0(:), s1(:, :), s2(:, :, :), va(:, :), &
-            vb(:, :, :)
+        ! per new particle, packed in one column (a pair's updates touch four cache lines of
+        ! one column instead of eight arrays): mass, m e and volume handed on, the velocity
+        ! interpolant's moments (s0, s1, s2) and the sums sum u v (va) and sum u d v^T (vb)
+        ! that give the corrected interpolant in one pass
+        integer, parameter :: A_M = 1, A_E = 2, A_VOL = 3, A_S0 = 4, A_S1 = 5, A_VA = 8, &
+            A_S2 = 11, A_VB = 20, A_SIZE = 28
+        real(wp), allocatable :: acc(:, :)
         ! per old particle: its pairs (offset / h, base weight, new particle)
         real(wp), allocatable :: dl(:, :), wl(:), cw(:)
         integer, allocatable :: al(:)
         type(neighbour_list_t) :: nl
-        integer :: i, j, k, p, c, nloc, lost, empty, n_mfb, n_vfb
+        integer :: i, j, k, p, c, q, nloc, lost, empty, n_mfb, n_vfb
         real(wp) :: d(3), f, beta(3), gam(3), t0(3), t1(3, 3), mom_old(3), mom_new(3), &
-            mass_new, dv(3), u, vj
+            mass_new, dv(3), u, vj, s0, s1(3), s2(3, 3)
         logical :: ok
         character(len=120) :: msg
 
@@ -93,10 +96,7 @@ contains
             nloc = max(nloc, nl%start(j + 1) - nl%start(j))
         end do
         allocate(dl(3, nloc), wl(nloc), cw(nloc), al(nloc))
-        allocate(en(n_new), vol(n_new), s0(n_new), s1(3, n_new), s2(3, 3, n_new), &
-            va(3, n_new), vb(3, 3, n_new))
-        en = 0.0_wp; vol = 0.0_wp; s0 = 0.0_wp; s1 = 0.0_wp; s2 = 0.0_wp; va = 0.0_wp
-        vb = 0.0_wp
+        allocate(acc(A_SIZE, n_new), source=0.0_wp)
         lost = 0
         n_mfb = 0
         do j = 1, n_old
@@ -152,18 +152,21 @@ contains
             do p = 1, nloc
                 i = al(p)
                 ! extensive quantities handed on
-                m_new(i) = m_new(i) + cw(p) * m_old(j)
-                en(i) = en(i) + cw(p) * m_old(j) * e_old(j)
-                vol(i) = vol(i) + cw(p) * vj
+                acc(A_M, i) = acc(A_M, i) + cw(p) * m_old(j)
+                acc(A_E, i) = acc(A_E, i) + cw(p) * m_old(j) * e_old(j)
+                acc(A_VOL, i) = acc(A_VOL, i) + cw(p) * vj
                 ! velocity moments at the new particle, offsets from it (-d) and u = W V
                 u = wl(p) * vj
                 d = -dl(:, p)
-                s0(i) = s0(i) + u
-                s1(1:dim, i) = s1(1:dim, i) + u * d(1:dim)
-                va(1:dim, i) = va(1:dim, i) + u * v_old(1:dim, j)
+                acc(A_S0, i) = acc(A_S0, i) + u
+                acc(A_S1:A_S1 + dim - 1, i) = acc(A_S1:A_S1 + dim - 1, i) + u * d(1:dim)
+                acc(A_VA:A_VA + dim - 1, i) = acc(A_VA:A_VA + dim - 1, i) + u * v_old(1:dim, j)
                 do c = 1, dim
-                    s2(1:dim, c, i) = s2(1:dim, c, i) + u * d(1:dim) * d(c)
-                    vb(1:dim, c, i) = vb(1:dim, c, i) + u * d(c) * v_old(1:dim, j)
+                    q = 3 * (c - 1)
+                    acc(A_S2 + q:A_S2 + q + dim - 1, i) = acc(A_S2 + q:A_S2 + q + dim - 1, i) &
+                        + u * d(1:dim) * d(c)
+                    acc(A_VB + q:A_VB + q + dim - 1, i) = acc(A_VB + q:A_VB + q + dim - 1, i) &
+                        + u * d(c) * v_old(1:dim, j)
                 end do
             end do
         end do
@@ -173,32 +176,37 @@ contains
             call fail(1)
             return
         end if
-        empty = count(m_new(1:n_new) <= 0.0_wp .or. vol <= 0.0_wp)
+        m_new(1:n_new) = acc(A_M, 1:n_new)
+        empty = count(m_new(1:n_new) <= 0.0_wp .or. acc(A_VOL, 1:n_new) <= 0.0_wp)
         if (empty > 0) then
             write(msg, '(a, i0, a)') 'remesh_transfer: ', empty, &
                 ' new particle(s) receive no mass (no old particle within the support)'
             call fail(2)
             return
         end if
-        e_new(1:n_new) = en / m_new(1:n_new)
-        rho_new(1:n_new) = m_new(1:n_new) / vol
+        e_new(1:n_new) = acc(A_E, 1:n_new) / m_new(1:n_new)
+        rho_new(1:n_new) = m_new(1:n_new) / acc(A_VOL, 1:n_new)
 
         ! velocity: the first-order corrected interpolant,
         ! v_a = sum_j u_aj (1 + gam . d_j) v_j / (s0 + gam . s1) = (va + vb gam) / (s0 + gam . s1)
         n_vfb = 0
         do i = 1, n_new
-            call solve_small(dim, s2(:, :, i), -s1(:, i), gam, ok)
-            if (ok) ok = s0(i) + dot_product(gam(1:dim), s1(1:dim, i)) > 1.0e-12_wp * s0(i)
+            s2 = reshape(acc(A_S2:A_S2 + 8, i), [3, 3])
+            s1 = acc(A_S1:A_S1 + 2, i)
+            s0 = acc(A_S0, i)
+            call solve_small(dim, s2, -s1, gam, ok)
+            if (ok) ok = s0 + dot_product(gam(1:dim), s1(1:dim)) > 1.0e-12_wp * s0
             if (.not. ok) then
                 n_vfb = n_vfb + 1
                 gam = 0.0_wp
             end if
-            f = s0(i) + dot_product(gam(1:dim), s1(1:dim, i))
+            f = s0 + dot_product(gam(1:dim), s1(1:dim))
             d = 0.0_wp
             do c = 1, dim
-                d(1:dim) = d(1:dim) + gam(c) * vb(1:dim, c, i)
+                q = A_VB + 3 * (c - 1)
+                d(1:dim) = d(1:dim) + gam(c) * acc(q:q + dim - 1, i)
             end do
-            v_new(1:dim, i) = (va(1:dim, i) + d(1:dim)) / f
+            v_new(1:dim, i) = (acc(A_VA:A_VA + dim - 1, i) + d(1:dim)) / f
         end do
 
         ! one uniform correction: total momentum as before
