@@ -304,7 +304,8 @@ contains
         end do
         tvf = phys%transport_velocity
         p_b = phys%transport_pressure
-        fast_fluid = .not. (tvf .or. strain_viscosity)
+        ! the terms morris_fluid_pairs evaluates: Morris' viscosity, no transport velocity
+        fast_fluid = phys%viscosity == VISCOSITY_MORRIS .and. .not. tvf
         if (tvf) then
             allocate(vol_sq(p%n_total))
             vol_sq(:) = (p%m(1:p%n_total) / p%rho(1:p%n_total))**2
@@ -336,8 +337,8 @@ contains
             ! A_i = rho_i v_i (vt_i - v_i): (A_i . grad W)_a = a_i(a) (dv_transport_i . grad W)
             if (tvf) a_i = rho_i * p%v(:, i)
             ! the pairs within the support not yet evaluated from the other side, then dW/dr
-            ! of all of them in one kernel call. Without the transport velocity and the
-            ! strain-rate viscosity the fluid partners come first (n_fluid of them) and go
+            ! of all of them in one kernel call. With Morris' viscosity and without the
+            ! transport velocity the fluid partners come first (n_fluid of them) and go
             ! through morris_fluid_pairs; the others (walls, mirrors) follow in list order
             ! through the general loop.
             n_near = 0
