@@ -43,7 +43,7 @@ module sph_stepper
         TIMER_HALO, TIMER_INTEGRATION, TIMER_OTHER
     use sph_transition_driver, only: level_stats_t, create_level_particles, &
         update_transition_zones_of => update_transition_zones, level_totals, &
-        refresh_virtual_fields, refine_uniform_state, set_virtual_masses
+        refresh_virtual_fields, refine_uniform_state, set_virtual_masses, refresh_plan_t
     implicit none
     private
     public :: simulation_solid_forces, simulation_write_forces, simulation_log_forces
@@ -89,6 +89,8 @@ module sph_stepper
         type(physics_t), allocatable :: level_phys(:)
         integer(i8) :: next_id = 0
         type(level_stats_t) :: level_stats
+        !> the virtual particles' refresh candidates; invalid after every rebuild
+        type(refresh_plan_t) :: refresh_plan
         real(wp), allocatable :: first_level_mass(:)   !< real mass per level at the start
         !> wall seconds spent in the transition zones' updates (with their rebuild) so far
         real(wp) :: transition_seconds = 0.0_wp
@@ -473,6 +475,7 @@ contains
         call refresh_neighbours(sim)
         call timers_leave(sim%timers, previous)
         sim%drift = 0.0_wp
+        sim%refresh_plan%valid = .false.
     end subroutine simulation_prepare_neighbours
 
     !> Mirrors and the neighbour list for the current positions. The list holds pairs within
@@ -676,7 +679,8 @@ contains
                 ! the virtual particles take the other level's fields where they now are
                 call timers_enter(sim%timers, TIMER_OTHER, previous)
                 start = MPI_Wtime()
-                call refresh_virtual_fields(sim%zones, sim%level_phys, sim%p, sim%level_stats)
+                call refresh_virtual_fields(sim%zones, sim%level_phys, sim%p, sim%level_stats, &
+                    sim%refresh_plan, sim%list_skin)
                 call refresh_ghosts(sim, env, moved_fields(sim))
                 sim%transition_seconds = sim%transition_seconds + (MPI_Wtime() - start)
                 call timers_leave(sim%timers, previous)

@@ -48,6 +48,7 @@ module sph_transition_driver
     private
     public :: level_stats_t, create_level_particles, update_transition_zones, level_totals
     public :: refresh_virtual_fields, refine_uniform_state, set_virtual_masses
+    public :: refresh_plan_t
 
     !> Source particles are taken within the zone width plus SOURCE_MARGIN source spacings:
     !> enough for the refinement's cells (<= 1.8 dx), the coarsening's rows and tagging chains
@@ -65,6 +66,23 @@ module sph_transition_driver
         integer(i8) :: empty = 0                      !< virtuals with no source in reach
         integer(i8) :: clipped = 0                    !< values clipped to their sources' range
     end type level_stats_t
+
+    type :: index_list_t
+        integer, allocatable :: i(:)
+    end type index_list_t
+
+    !> refresh_virtual_fields' candidates, kept from one rebuild of the halo and the
+    !> neighbour list to the next (particle indices are fixed in between): each level's owned
+    !> virtual particles, and for each level and each neighbouring level (side 0 below, 1
+    !> above) the source particles within reach + margin of it, margin a bound on how far a
+    !> particle moves before the next rebuild. Each step then filters these short lists
+    !> instead of testing every particle against the regions.
+    type :: refresh_plan_t
+        logical :: valid = .false.
+        integer :: n_owned = -1, n_total = -1
+        type(index_list_t) :: virtuals(0:MAX_LEVEL)
+        type(index_list_t) :: sources(0:MAX_LEVEL, 0:1)
+    end type refresh_plan_t
 
     !> New virtual particles of one level, before they join the particle set.
     type :: new_set_t
@@ -363,39 +381,39 @@ contains
     !> interpolated as when it was made (sph_transition); positions and masses stay. Every
     !> value is computed from the state on entry and written at the end: virtual particles of
     !> one level are sources for those of the other, and their ghosts on other ranks still
-    !> hold the entry state. Needs current ghosts; no MPI.
-    subroutine refresh_virtual_fields(zones, level_phys, p, stats)
+    !> hold the entry state. Needs current ghosts; no MPI. plan: the candidates (made anew
+    !> when not valid or when the particle counts changed; the caller invalidates it at every
+    !> rebuild), margin: a bound on how far any particle moves until the next rebuild.
+    subroutine refresh_virtual_fields(zones, level_phys, p, stats, plan, margin)
         type(zones_t), intent(in) :: zones
         type(physics_t), intent(in) :: level_phys(0:)
         type(particles_t), intent(inout) :: p
         type(level_stats_t), intent(inout) :: stats
+        type(refresh_plan_t), intent(inout) :: plan
+        real(wp), intent(in) :: margin
         integer :: target, source, j, n_fb, n_empty, n_clip, dim
         integer, allocatable :: dst(:), src(:)
-        logical, allocatable :: take(:), changed(:)
+        logical, allocatable :: changed(:)
         real(wp), allocatable :: xs(:, :), fs(:, :), xd(:, :), fd(:, :), new_fields(:, :)
         real(wp) :: reach
         dim = p%dim
+        if (.not. plan%valid .or. plan%n_owned /= p%n_owned .or. plan%n_total /= p%n_total) &
+            call make_refresh_plan(zones, level_phys, p, margin, plan)
         allocate(new_fields(5, p%n_owned), changed(p%n_owned))
         changed = .false.
         do target = 0, zones%n_levels - 1
             do source = max(target - 1, 0), min(target + 1, zones%n_levels - 1)
                 if (source == target) cycle
-                allocate(take(p%n_owned))
-                do j = 1, p%n_owned
-                    take(j) = p%kind(j) == KIND_VIRTUAL .and. p%level(j) == target
-                    if (take(j)) take(j) = zones%level_at(p%x(:, j)) == source
-                end do
-                dst = pack([(j, j = 1, p%n_owned)], take)
-                deallocate(take)
+                associate (cand => plan%virtuals(target)%i)
+                    dst = pack(cand, [(zones%level_at(p%x(:, cand(j))) == source, &
+                        j = 1, size(cand))])
+                end associate
                 if (size(dst) == 0) cycle
                 reach = zones%width + SOURCE_MARGIN * level_phys(source)%dx
-                allocate(take(p%n_owned + p%n_ghost))
-                do j = 1, p%n_owned + p%n_ghost
-                    take(j) = p%level(j) == source .and. moves_with_flow(p%kind(j))
-                    if (take(j)) take(j) = zones%distance_to_level(p%x(:, j), target) < reach
-                end do
-                src = pack([(j, j = 1, p%n_owned + p%n_ghost)], take)
-                deallocate(take)
+                associate (cand => plan%sources(target, merge(1, 0, source > target))%i)
+                    src = pack(cand, [(zones%distance_to_level(p%x(:, cand(j)), target) < &
+                        reach, j = 1, size(cand))])
+                end associate
                 allocate(xs(3, max(size(src), 1)), fs(5, max(size(src), 1)))
                 allocate(xd(3, size(dst)), fd(5, size(dst)))
                 do j = 1, size(src)
@@ -426,6 +444,39 @@ contains
             p%e(j) = new_fields(5, j)
         end do
     end subroutine refresh_virtual_fields
+
+    !> refresh_virtual_fields' candidates for the current particles: its tests with the reach
+    !> widened by margin (distance_to_level is 1-Lipschitz, so a particle that moves less
+    !> than margin cannot enter the reach from outside these lists), in index order.
+    subroutine make_refresh_plan(zones, level_phys, p, margin, plan)
+        type(zones_t), intent(in) :: zones
+        type(physics_t), intent(in) :: level_phys(0:)
+        type(particles_t), intent(in) :: p
+        real(wp), intent(in) :: margin
+        type(refresh_plan_t), intent(inout) :: plan
+        integer :: target, side, source, j
+        integer, allocatable :: cand(:)
+        real(wp) :: reach
+        do target = 0, MAX_LEVEL
+            plan%virtuals(target)%i = pack([(j, j = 1, p%n_owned)], &
+                p%kind(1:p%n_owned) == KIND_VIRTUAL .and. p%level(1:p%n_owned) == target)
+            do side = 0, 1
+                source = target - 1 + 2 * side
+                if (target >= zones%n_levels .or. source < 0 .or. source >= zones%n_levels) then
+                    plan%sources(target, side)%i = [integer ::]
+                    cycle
+                end if
+                reach = zones%width + SOURCE_MARGIN * level_phys(source)%dx + margin
+                cand = pack([(j, j = 1, p%n_total)], [(p%level(j) == source .and. &
+                    moves_with_flow(p%kind(j)), j = 1, p%n_total)])
+                plan%sources(target, side)%i = pack(cand, &
+                    [(zones%distance_to_level(p%x(:, cand(j)), target) < reach, j = 1, size(cand))])
+            end do
+        end do
+        plan%n_owned = p%n_owned
+        plan%n_total = p%n_total
+        plan%valid = .true.
+    end subroutine make_refresh_plan
 
     !> Masses of the owned virtual particles near their level's region from the volume their
     !> own level's particles leave them: m = rho V, V = dx_L^dim S_L / sum_j W_ij over the
