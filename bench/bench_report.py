@@ -120,7 +120,7 @@ def main():
 
     for name, title in [('remesh', 'remeshing throughput (sphremesh_bench_remesh)'),
                         ('multires', 'multi-resolution cost study (sphremesh_bench_multires, '
-                                     '20 steps)')]:
+                                     '20 steps, fastest of 3 alternations)')]:
         print('\n# ' + title)
         for np in (1, 2):
             path = os.path.join(out, '%s_np%d.txt' % (name, np))
