@@ -64,7 +64,7 @@ module sph_remesh_driver
     use sph_remesh_relax, only: relax_displacements, RELAX_PASSES, RELAX_H_FACTOR
     use sph_coarsen, only: coarsen_select
     use sph_remesh_interp, only: remesh_transfer
-    use sph_global_ids, only: assign_global_ids, global_max_id
+    use sph_global_ids, only: assign_global_ids, global_max_id, id_order
     implicit none
     private
     public :: remesh_report_t, remesh_fluid, remesh_mode_code, remesh_spacing_factor
@@ -148,7 +148,7 @@ contains
         integer(i8), allocatable :: ids(:), idn(:)
         integer :: n, n_new, my_stat, k, c
         integer(i8) :: base
-        real(wp) :: t0, local(4)
+        real(wp) :: t0, local(4), ghost_ratio
         character(len=:), allocatable :: message
         logical, allocatable :: fluid(:)
 
@@ -156,6 +156,7 @@ contains
         stat = 0
         errmsg = ''
         message = ''
+        ghost_ratio = real(max(p%n_total, 1), wp) / real(max(p%n_owned, 1), wp)
         ! totals before, over all ranks
         fluid = p%kind(1:p%n_owned) == KIND_FLUID
         call fluid_totals(p, fluid, local)
@@ -179,6 +180,9 @@ contains
             call coarsen_step(dx / 2.0_wp, n, my_stat, message)
             if (my_stat == 0) call relax_new_set()
         end if
+        ! the new set in id order: its particles then lie about in space order (the ids follow
+        ! the keys, the keys the old ids), for the transfer and for the caller's id order
+        if (env%rank == 0 .and. my_stat == 0) call in_id_order()
         if (env%rank == 0 .and. my_stat == 0) call transfer(my_stat, message)
         if (refused()) return
 
@@ -187,7 +191,9 @@ contains
         p%n_owned = count(.not. fluid)
         p%n_ghost = 0
         p%n_total = p%n_owned
-        call particles_reserve(p, p%n_owned + n_new)
+        ! room for the ghosts of the new set too (as many per owned particle as before): the
+        ! caller's halo build would otherwise grow every field again, copying them all
+        call particles_reserve(p, int(real(p%n_owned + n_new, wp) * ghost_ratio))
         if (n_new > 0) call particles_clear(p, p%n_owned + 1, p%n_owned + n_new)
         do k = 1, n_new
             c = p%n_owned + k
@@ -339,6 +345,15 @@ contains
                 if (solid_distance(solids%list(s), z + box_lo) < gap) clear_of_solids = .false.
             end do
         end function clear_of_solids
+
+        !> Rank 0: the new set xn/idn in increasing id order.
+        subroutine in_id_order()
+            integer, allocatable :: order(:)
+            allocate(order(n_new))
+            call id_order(idn, n_new, order)
+            xn = xn(:, order)
+            idn = idn(order)
+        end subroutine in_id_order
 
         !> ids for the keys in idn (all ranks take part; rank 0 holds the keys).
         subroutine fresh_ids()

@@ -372,6 +372,11 @@ contains
         integer, intent(in) :: src(:)
         type(copy_op_t) :: op
         integer :: k
+        ! the identity (a set already in order) copies nothing
+        do k = 1, size(src)
+            if (src(k) /= k) exit
+        end do
+        if (k > size(src)) return
         op%src = src
         op%dst = [(k, k = 1, size(src))]
         call particles_visit(p, op)
