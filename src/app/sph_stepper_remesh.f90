@@ -107,13 +107,14 @@ contains
         if (stat /= 0) call fatal_collective('remesh', errmsg)
         if (regenerate) then
             ! the fluid first (rank 0 holds it all), then the walls of the lattice at dx_new,
-            ! their ids after every fluid id (lattice ids are unique and rank independent)
+            ! their ids after every fluid id (lattice ids are unique and rank independent),
+            ! each made by the rank whose region (the partition from before the remesh) holds
+            ! it; the partition below and the migration hand them to their owners
             keep = pack([(k, k = 1, sim%p%n_owned)], sim%p%kind(1:sim%p%n_owned) == KIND_FLUID)
             call particles_gather(sim%p, keep)
             sim%p%n_owned = size(keep)
             sim%p%n_total = sim%p%n_owned
             base = global_max_id(env, sim%p%id, sim%p%n_owned)
-            call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
             call particles_init(walls, 1024, sim%cfg%domain%dimension)
             call create_lattice_particles(sim%cfg, sim%phys, sim%solids, sim%domain, walls, &
                 walls_only=.true.)
