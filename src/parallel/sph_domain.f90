@@ -69,6 +69,10 @@ contains
         real(wp), allocatable :: nlo(:, :), nhi(:, :), a(:), b(:), c(:), target(:), total(:)
         real(wp), allocatable :: below(:), below_local(:), local_max(:), local_min(:)
         real(wp), allocatable :: glob_max(:), glob_min(:)
+        !> per point, this level: its node's place in `active` (0: none) and its coordinate
+        !> along that node's axis (the bisection's counting passes read these two only)
+        integer, allocatable :: slot(:)
+        real(wp), allocatable :: xa(:)
         integer(i8) :: total_count
 
         max_nodes = 2 * domain%nranks + 1
@@ -98,9 +102,10 @@ contains
             allocate(below(n_active), below_local(n_active), local_max(n_active), &
                 local_min(n_active), glob_max(n_active), glob_min(n_active))
             ! weight of each active node
+            slot = [(findloc(active, node_of(i), dim=1), i = 1, n)]
             below_local = 0.0_wp
             do i = 1, n
-                k = findloc(active, node_of(i), dim=1)
+                k = slot(i)
                 if (k > 0) below_local(k) = below_local(k) + 1.0_wp
             end do
             call MPI_Allreduce(below_local, total, n_active, mpi_wp, MPI_SUM, env%comm, ierr)
@@ -115,6 +120,11 @@ contains
                 b(k) = nhi(axis, node)
             end do
             if (total_count > 0) then
+                allocate(xa(n))
+                do i = 1, n
+                    xa(i) = 0.0_wp
+                    if (slot(i) > 0) xa(i) = x(domain%node_axis(active(slot(i))), i)
+                end do
                 ! bisection on the cut: smallest c with weight(x < c) >= target
                 do it = 1, bisection_steps
                     c = 0.5_wp * (a + b)
@@ -125,11 +135,12 @@ contains
                         a = c
                     end where
                 end do
+                deallocate(xa)
                 c = b
                 ! centre the cut in the gap between the particles on either side of it
                 local_max = -far; local_min = far
                 do i = 1, n
-                    k = findloc(active, node_of(i), dim=1)
+                    k = slot(i)
                     if (k == 0) cycle
                     axis = domain%node_axis(active(k))
                     if (x(axis, i) < c(k)) then
@@ -175,7 +186,7 @@ contains
                 end associate
             end do
             do i = 1, n
-                k = findloc(active, node_of(i), dim=1)
+                k = slot(i)
                 if (k == 0) cycle
                 node = active(k)
                 if (x(domain%node_axis(node), i) < domain%node_cut(node)) then
@@ -209,10 +220,9 @@ contains
             integer :: j, kk
             below_local = 0.0_wp
             do j = 1, n
-                kk = findloc(active, node_of(j), dim=1)
+                kk = slot(j)
                 if (kk == 0) cycle
-                if (x(domain%node_axis(active(kk)), &
-                    j) < cut(kk)) below_local(kk) = below_local(kk) + 1.0_wp
+                if (xa(j) < cut(kk)) below_local(kk) = below_local(kk) + 1.0_wp
             end do
             call MPI_Allreduce(below_local, result_weight, size(cut), mpi_wp, MPI_SUM, env%comm, &
                 ierr)
