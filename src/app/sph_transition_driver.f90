@@ -469,8 +469,8 @@ contains
                 reach = zones%width + SOURCE_MARGIN * level_phys(source)%dx + margin
                 cand = pack([(j, j = 1, p%n_total)], [(p%level(j) == source .and. &
                     moves_with_flow(p%kind(j)), j = 1, p%n_total)])
-                plan%sources(target, side)%i = pack(cand, &
-                    [(zones%distance_to_level(p%x(:, cand(j)), target) < reach, j = 1, size(cand))])
+                plan%sources(target, side)%i = pack(cand, [(zones%distance_to_level( &
+                    p%x(:, cand(j)), target) < reach, j = 1, size(cand))])
             end do
         end do
         plan%n_owned = p%n_owned
