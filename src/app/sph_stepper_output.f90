@@ -166,23 +166,35 @@ contains
             sim%level_stats%mass_out(0:n - 1)])
         per_step = 1.0_wp / real(max(sim%level_stats%updates, 1_i8), wp)
         do lv = 0, n - 1
-            write(line, '(a,i0,a,i0,a,i0,a,f8.3,a,f8.3,a,es16.9,a,es10.3,a,2es10.3,a,3es11.3)') &
+            write(line, '(a,i0,a,i0,a,i0,a,f8.3,a,f8.3,a,es16.9,a,a,a,2es10.3,a,3es11.3)') &
                 '  level ', lv, ': ', n_real(lv), ' real, ', n_virtual(lv), &
                 ' virtual; per step ', real(became(lv + 1), wp) * per_step, ' became real, ', &
                 real(left(lv + 1), wp) * per_step, ' left; real mass ', mass(lv), &
-                ' kg (drift ', (mass(lv) - sim%first_level_mass(lv)) / &
-                sim%first_level_mass(lv), ', in/out since last line', crossed(lv + 1), &
+                ' kg (drift ', drift_text(mass(lv), sim%first_level_mass(lv)), &
+                ', in/out since last line', crossed(lv + 1), &
                 crossed(n + lv + 1), '), momentum', momentum(:, lv)
             call log_info(trim(line))
         end do
-        write(line, '(a,es16.9,a,es10.3,a,i0,a,i0,a,i0)') '  all levels: real mass ', &
-            sum(mass), ' kg (drift ', (sum(mass) - sum(sim%first_level_mass)) / &
-            sum(sim%first_level_mass), '); interpolation fallbacks ', &
+        write(line, '(a,es16.9,a,a,a,i0,a,i0,a,i0)') '  all levels: real mass ', &
+            sum(mass), ' kg (drift ', drift_text(sum(mass), sum(sim%first_level_mass)), &
+            '); interpolation fallbacks ', &
             global_sum(env, sim%level_stats%fallbacks), ', clipped ', &
             global_sum(env, sim%level_stats%clipped), ', virtuals without sources ', &
             global_sum(env, sim%level_stats%empty)
         call log_info(trim(line))
         sim%level_stats = level_stats_t()
+    contains
+        !> The relative change of a real mass from its start, or n/a for a level that started
+        !> without any (a region holding no particle of its level: 0 / 0).
+        function drift_text(now, start) result(text)
+            real(wp), intent(in) :: now, start
+            character(len=10) :: text
+            if (start > 0.0_wp) then
+                write(text, '(es10.3)') (now - start) / start
+            else
+                text = '       n/a'
+            end if
+        end function drift_text
     end procedure simulation_log_levels
 
     module procedure simulation_analytic_error
