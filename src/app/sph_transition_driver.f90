@@ -38,7 +38,7 @@ module sph_transition_driver
     use sph_solids, only: solids_t, deepest_solid
     use sph_domain, only: domain_t, domain_owner
     use sph_zones, only: zones_t, MAX_LEVEL
-    use sph_initial, only: create_lattice_particles
+    use sph_initial, only: create_lattice_particles, site_filter_t
     use sph_global_ids, only: global_max_id, assign_global_ids, id_order
     use sph_cell_list, only: neighbour_list_t
     use sph_kernel, only: kernel_t
@@ -84,6 +84,16 @@ module sph_transition_driver
         type(index_list_t) :: sources(0:MAX_LEVEL, 0:1)
     end type refresh_plan_t
 
+    !> The lattice sites a level keeps at set-up (create_level_particles): its fluid in its
+    !> region and transition zone, its walls within reach of those.
+    type, extends(site_filter_t) :: level_sites_t
+        type(zones_t) :: zones
+        integer :: level = 0
+        real(wp) :: reach = 0.0_wp
+    contains
+        procedure :: keep => keep_level_site
+    end type level_sites_t
+
     !> New virtual particles of one level, before they join the particle set.
     type :: new_set_t
         integer :: n = 0
@@ -110,43 +120,36 @@ contains
         type(particles_t), intent(inout) :: p
         type(config_t) :: level_cfg
         type(particles_t) :: lattice
+        type(level_sites_t) :: sites
         integer :: lv, k
         integer(i8) :: offset, level_max
-        integer, allocatable :: keep(:)
-        logical, allocatable :: wanted(:)
-        real(wp) :: reach
 
         p%n_owned = 0
         p%n_total = 0
         offset = 0
+        sites%zones = zones
         do lv = 0, zones%n_levels - 1
             level_cfg = cfg
             level_cfg%domain%dx = cfg%domain%dx / 2.0_wp**lv
+            sites%level = lv
+            sites%reach = zones%width + level_phys(lv)%kernel%support
             call particles_init(lattice, 1024, cfg%domain%dimension)
-            call create_lattice_particles(level_cfg, level_phys(lv), solids, domain, lattice)
+            ! only the sites the level keeps: the whole lattice of a fine level would be the
+            ! memory of the uniformly fine run
+            call create_lattice_particles(level_cfg, level_phys(lv), solids, domain, lattice, &
+                filter=sites)
             level_max = global_max_id(env, lattice%id, lattice%n_owned)
-            reach = zones%width + level_phys(lv)%kernel%support
-            allocate(wanted(lattice%n_owned))
-            wanted = .false.
+            ! the fluid outside the level's region lies in its transition zone: virtual
             do k = 1, lattice%n_owned
                 lattice%level(k) = lv
                 lattice%id(k) = lattice%id(k) + offset
-                if (lattice%kind(k) == KIND_FLUID) then
-                    if (zones%level_at(lattice%x(:, k)) == lv) then
-                        wanted(k) = .true.
-                    else if (zones%in_transition(lattice%x(:, k), lv)) then
-                        lattice%kind(k) = KIND_VIRTUAL
-                        lattice%id(k) = virtual_id(lv, lattice%id(k), -1_i8)
-                        wanted(k) = .true.
-                    end if
-                else
-                    wanted(k) = zones%distance_to_level(lattice%x(:, k), lv) < reach
-                end if
+                if (lattice%kind(k) /= KIND_FLUID) cycle
+                if (zones%level_at(lattice%x(:, k)) == lv) cycle
+                lattice%kind(k) = KIND_VIRTUAL
+                lattice%id(k) = virtual_id(lv, lattice%id(k), -1_i8)
             end do
-            keep = pack([(k, k = 1, lattice%n_owned)], wanted)
-            deallocate(wanted)
             offset = offset + level_max
-            call particles_append(p, lattice, keep)
+            call particles_append(p, lattice, [(k, k = 1, lattice%n_owned)])
             call particles_free(lattice)
         end do
         p%n_ghost = 0
@@ -477,6 +480,20 @@ contains
         plan%n_total = p%n_total
         plan%valid = .true.
     end subroutine make_refresh_plan
+
+    !> level_sites_t: the fluid sites of the level's region and transition zone, the wall
+    !> sites within reach of the level's points.
+    logical function keep_level_site(self, x, kind) result(keep)
+        class(level_sites_t), intent(in) :: self
+        real(wp), intent(in) :: x(3)
+        integer, intent(in) :: kind
+        if (kind == KIND_FLUID) then
+            keep = self%zones%level_at(x) == self%level
+            if (.not. keep) keep = self%zones%in_transition(x, self%level)
+        else
+            keep = self%zones%distance_to_level(x, self%level) < self%reach
+        end if
+    end function keep_level_site
 
     !> Masses of the owned virtual particles near their level's region from the volume their
     !> own level's particles leave them: m = rho V, V = dx_L^dim S_L / sum_j W_ij over the

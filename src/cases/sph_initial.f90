@@ -18,11 +18,29 @@ module sph_initial
     private
     public :: create_lattice_particles
 
+    !> Which lattice sites a caller wants (create_lattice_particles' optional filter): the
+    !> others are never made, so a lattice over the whole box costs memory only for what is
+    !> kept (a fine level of a multi-resolution run needs its region and zone only).
+    type, abstract, public :: site_filter_t
+    contains
+        procedure(keep_site_i), deferred :: keep
+    end type site_filter_t
+
+    abstract interface
+        !> Whether the site at x that would get a particle of this kind is made.
+        logical function keep_site_i(self, x, kind)
+            import :: site_filter_t, wp
+            class(site_filter_t), intent(in) :: self
+            real(wp), intent(in) :: x(3)
+            integer, intent(in) :: kind
+        end function keep_site_i
+    end interface
+
 contains
 
     !> The initial particles: this rank's share of the fluid lattice (bodies and walls left
     !> out) and the wall particles of every solid, with masses rho0 dx^dim and ids by site.
-    subroutine create_lattice_particles(cfg, phys, solids, domain, p, walls_only)
+    subroutine create_lattice_particles(cfg, phys, solids, domain, p, walls_only, filter)
         type(config_t), intent(in) :: cfg
         type(physics_t), intent(in) :: phys
         type(solids_t), intent(in) :: solids
@@ -30,6 +48,8 @@ contains
         type(particles_t), intent(inout) :: p
         !> only the wall particles (a remesh's new walls; ids as in the full lattice)
         logical, intent(in), optional :: walls_only
+        !> only the sites it keeps (ids as in the full lattice)
+        class(site_filter_t), intent(in), optional :: filter
         integer :: n_inside(3), first(3), last(3), idx(3), i, j, k, solid, layers, axis
         integer(i8) :: n_fluid_total, n_ext(3), linear
         real(wp) :: xi(3), xf(3), normal(3), distance, mass, fluid_mass
@@ -58,6 +78,7 @@ contains
                     ! the lattice minus the solids (bodies inside the box, their surfaces
                     ! included): the same rule that makes the wall sites
                     if (.not. fluid_site(xi, xf)) cycle
+                    if (.not. wanted(xf, KIND_FLUID)) cycle
                     linear = 1 + (i - 1) + int(n_inside(1), i8) * ((j - 1) + int(n_inside(2), &
                         i8) * (k - 1))
                     call add_particle(xf, linear, KIND_FLUID, [0.0_wp, 0.0_wp, 0.0_wp], 0.0_wp, &
@@ -86,6 +107,7 @@ contains
                         if (.not. site) cycle
                         if (distance > layers * cfg%domain%dx) cycle   ! deeper than the support
                         if (domain_owner(domain, xi) /= domain%rank) cycle
+                        if (.not. wanted(xi, KIND_WALL)) cycle
                         linear = n_fluid_total + 1 + (i - first(1)) &
                             + n_ext(1) * ((j - first(2)) + n_ext(2) * (k - first(3)))
                         call add_particle(xi, linear, KIND_WALL, normal, distance, &
@@ -102,6 +124,14 @@ contains
         p%n_ghost = 0
 
     contains
+
+        !> The caller's filter (every site without one).
+        logical function wanted(x, kind)
+            real(wp), intent(in) :: x(3)
+            integer, intent(in) :: kind
+            wanted = .true.
+            if (present(filter)) wanted = filter%keep(x, kind)
+        end function wanted
 
         !> A site that gets a fluid particle: outside every solid, its surface included; the
         !> particle goes to y, at least FLUID_CLEARANCE dx from every solid (fluid_position).
@@ -258,6 +288,7 @@ contains
                             if (cfg%domain%dimension == 3) x(t2) = cfg%domain%box_lo(t2) + &
                                 (real(b, wp) - 0.5_wp) * cfg%domain%dx
                             if (domain_owner(domain, x) /= domain%rank) cycle
+                            if (.not. wanted(x, KIND_WALL)) cycle
                             call add_particle(x, id, KIND_WALL, plane%normal, 0.0_wp, &
                                 plane%velocity, s)
                         end do
@@ -287,6 +318,7 @@ contains
                     x(ax) = cfg%domain%box_lo(ax) + modulo(x(ax) - cfg%domain%box_lo(ax), length)
                 end do
                 if (domain_owner(domain, x) /= domain%rank) cycle
+                if (.not. wanted(x, KIND_WALL)) cycle
                 call add_particle(x, id, KIND_WALL, ns(:, q), 0.0_wp, &
                     solid_velocity(solids%list(s), x), s)
             end do
