@@ -15,7 +15,7 @@ module sph_schedule
     use sph_stepper, only: simulation_t, simulation_write_snapshot, &
         simulation_write_checkpoint, simulation_analytic_error, fluid_density_range, &
         simulation_write_forces, simulation_log_forces, simulation_log_levels, &
-        simulation_neighbours_per_particle
+        simulation_neighbours_per_particle, simulation_synchronised
     use sph_step_timers, only: timers_split_line
     use sph_signals, only: signal_received
     implicit none
@@ -41,6 +41,8 @@ module sph_schedule
         integer(i8) :: log_every = 0             !< steps between log lines; 0 = not yet chosen
         integer(i8) :: steps_since_log = 0
         integer(i8) :: first_step = 0            !< the step the run (re)started from
+        !> the last step after which every level was at the end of its step (sub-cycling)
+        integer(i8) :: last_synchronised = 0
         real(wp) :: wall_start = 0.0_wp          !< wall clock at the start, last log line and
         real(wp) :: wall_last = 0.0_wp           !< last checkpoint (s)
         real(wp) :: wall_checkpoint = 0.0_wp
@@ -73,6 +75,7 @@ contains
         sched%wall_last = sched%wall_start
         sched%wall_checkpoint = sched%wall_start
         sched%first_step = step
+        sched%last_synchronised = step
         sched%log_every = cfg%run%log_interval
         sched%steps_since_log = 0
         sched%finished = .false.
@@ -129,13 +132,21 @@ contains
         output_due = time >= sched%next_output * (1.0_wp - time_tol) .or. sched%finished
     end function output_due
 
-    !> A checkpoint by step count (the one at the end is written regardless).
-    pure logical function checkpoint_due_by_steps(sched, step)
+    !> A checkpoint by step count (the one at the end is written regardless): step is a
+    !> multiple of the interval, or (since: the last step a checkpoint could have been
+    !> written at, sub-cycling) one was passed after since.
+    pure logical function checkpoint_due_by_steps(sched, step, since)
         type(schedule_t), intent(in) :: sched
         integer(i8), intent(in) :: step
+        integer(i8), intent(in), optional :: since
         checkpoint_due_by_steps = .false.
-        if (sched%checkpoint_steps > 0) &
+        if (sched%checkpoint_steps <= 0) return
+        if (present(since)) then
+            checkpoint_due_by_steps = step / sched%checkpoint_steps > &
+                since / sched%checkpoint_steps
+        else
             checkpoint_due_by_steps = mod(step, sched%checkpoint_steps) == 0
+        end if
     end function checkpoint_due_by_steps
 
     !> A checkpoint by wall clock; elapsed is the same on every rank (rank 0's clock).
@@ -146,12 +157,15 @@ contains
             elapsed >= sched%checkpoint_wall
     end function checkpoint_due_by_wall
 
-    !> Everything due after a step: snapshot, checkpoint, log line (collective).
+    !> Everything due after a step: snapshot, checkpoint, log line (collective). With
+    !> sub-cycling (sph_stepper) snapshots, checkpoints and the end of the run wait for a step
+    !> after which every level is at the end of its own step; output times and t_end end
+    !> the levels' steps there, so only max_steps, checkpoints by step count or wall time and
+    !> stop requests can come a few steps late.
     subroutine schedule_after_step(sched, sim, env)
         type(schedule_t), intent(inout) :: sched
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
-        real(wp) :: wall_now
         character(len=256) :: line
 
         sched%steps_since_log = sched%steps_since_log + 1
@@ -165,6 +179,23 @@ contains
                 call log_info(trim(line) // ')')
             end if
         end if
+        if (simulation_synchronised(sim)) then
+            call after_synchronised_step(sched, sim, env)
+            sched%last_synchronised = sim%step
+        end if
+        if (mod(sim%step, sched%log_every) == 0 .or. sched%finished) then
+            call log_progress(sched, sim, env)
+            call simulation_log_levels(sim, env)
+        end if
+    end subroutine schedule_after_step
+
+    !> What schedule_after_step does once every level is at the end of its step: the end of
+    !> the run, snapshots and checkpoints.
+    subroutine after_synchronised_step(sched, sim, env)
+        type(schedule_t), intent(inout) :: sched
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        real(wp) :: wall_now
         sched%finished = run_finished(sched, sim%time, sim%step)
         if (.not. sched%finished) call check_stop_request(sched, env)
         if (output_due(sched, sim%time)) then
@@ -174,7 +205,7 @@ contains
         call wall_clock(wall_now)
         if (sched%finished) then
             call simulation_write_checkpoint(sim, env)
-        else if (checkpoint_due_by_steps(sched, sim%step)) then
+        else if (checkpoint_due_by_steps(sched, sim%step, sched%last_synchronised)) then
             call simulation_write_checkpoint(sim, env)
             sched%wall_checkpoint = wall_now
         end if
@@ -186,11 +217,7 @@ contains
                 sched%wall_checkpoint = wall_now
             end if
         end if
-        if (mod(sim%step, sched%log_every) == 0 .or. sched%finished) then
-            call log_progress(sched, sim, env)
-            call simulation_log_levels(sim, env)
-        end if
-    end subroutine schedule_after_step
+    end subroutine after_synchronised_step
 
     !> A scheduler's SIGTERM or SIGUSR1 on any rank, or the wall-time limit on rank 0's clock:
     !> the run ends after this step with a checkpoint (collective).

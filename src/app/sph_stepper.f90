@@ -26,9 +26,10 @@ module sph_stepper
     use sph_cell_list, only: neighbour_list_t, build_neighbour_list, cell_sort_order
     use sph_rates, only: update_pressure, release_rates_scratch
     use sph_shifting, only: shifting_diffusion, shift_particles
-    use sph_timestep, only: timestep_limits_t
+    use sph_timestep, only: timestep_limits_t, timestep_limits, level_substeps
     use sph_integrator, only: save_step_start, advance, max_step_displacement, verlet_drift, &
-        verlet_kick, stage_displacement_bound
+        verlet_kick, stage_displacement_bound, verlet_drift_levels, verlet_close_levels, &
+        verlet_kick_levels
     use sph_initial, only: create_lattice_particles
     use sph_particle_file, only: read_initial_particles
     use sph_global_ids, only: id_order, global_max_id
@@ -53,6 +54,7 @@ module sph_stepper
     public :: simulation_restart, simulation_write_checkpoint, simulation_write_snapshot
     public :: fluid_density_range, simulation_remesh, simulation_remesh_file
     public :: simulation_log_levels, simulation_neighbours_per_particle
+    public :: simulation_synchronised
 
     type :: simulation_t
         type(config_t) :: cfg
@@ -101,6 +103,20 @@ module sph_stepper
         !> the particles' rates do not belong to their current state (set-up, a restart from
         !> a checkpoint without Verlet rates, a remesh, shifting): verlet evaluates them first
         logical :: rates_stale = .true.
+        !> multi-resolution Verlet (sph_integrator's sub-cycled form; with &refinement
+        !> max_subcycles > 1 coarser levels take longer steps): the steps of the
+        !> finest level that each level's step spans in the current cycle, each level's
+        !> planned step and the time since it began, the cycle's finest-level steps so far
+        !> (0: every level is at the end of a step, the state is synchronised) and the step
+        !> it planned, the largest move of the last step, and the forces on the solids from
+        !> each level's last rates (xyz, pressure|viscous, solid, level)
+        logical :: subcycling = .false.
+        integer, allocatable :: level_substeps(:)
+        real(wp), allocatable :: level_span(:), level_elapsed(:)
+        integer :: cycle_step = 0
+        real(wp) :: cycle_dt = 0.0_wp
+        real(wp) :: step_moved = 0.0_wp
+        real(wp), allocatable :: level_wall_forces(:, :, :, :)
         !> where the step loop's wall time goes (sph_step_timers; the run loop starts them)
         type(step_timers_t) :: timers
     end type simulation_t
@@ -143,9 +159,11 @@ module sph_stepper
 
         !> Rates at the current state. Ghost fields are current on entry; stages that produce a
         !> field the neighbours need (summation density, strain rate) refresh the ghosts.
-        module subroutine evaluate_rates(sim, env)
+        !> levels: only the rates of these levels (sub-cycling); all when absent.
+        module subroutine evaluate_rates(sim, env, levels)
             type(simulation_t), intent(inout) :: sim
             type(mpi_env_t), intent(in) :: env
+            logical, intent(in), optional :: levels(0:)
         end subroutine evaluate_rates
 
         !> Time-step limit for the current rates (collective).
@@ -568,6 +586,10 @@ contains
         real(wp), intent(in), optional :: dt_cap
         real(wp) :: dt
 
+        if (sim%subcycling) then
+            call subcycled_verlet_step(sim, env, dt_cap)
+            return
+        end if
         if (sim%rates_stale) call evaluate_rates(sim, env)
         sim%rates_stale = .false.
         sim%last_limits = stable_timestep(sim, env)
@@ -591,6 +613,101 @@ contains
         call update_transition_zones(sim, env)
         call check_health(sim, env)
     end subroutine verlet_step
+
+    !> One step of the finest level with sub-cycled Verlet (sph_integrator), the Verlet step
+    !> of every multi-resolution run (with &refinement max_subcycles = 1 every level steps
+    !> each time). When every level is at the end of a step a cycle is planned: the
+    !> finest level's step from the limits and, per level, how many of them its step spans
+    !> (sph_timestep level_substeps, its own limits). Each step then starts the levels due,
+    !> drifts every particle, and evaluates the rates of and kicks the levels whose step
+    !> ends; the coarser levels' pair loops run only then. A step cut short to land on an
+    !> output time or t_end ends every level's step there, so snapshots, checkpoints and the
+    !> zones' updates see a synchronised state. Ghosts, mirrors and the list are current on
+    !> entry and exit.
+    subroutine subcycled_verlet_step(sim, env, dt_cap)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        real(wp), intent(in), optional :: dt_cap
+        real(wp) :: dt, max_shift
+        logical :: starts(0:sim%zones%n_levels - 1), ends(0:sim%zones%n_levels - 1)
+
+        if (sim%rates_stale) call evaluate_rates(sim, env)
+        sim%rates_stale = .false.
+        sim%last_limits = stable_timestep(sim, env)
+        if (sim%cycle_step == 0) call plan_cycle(sim)
+        dt = min(sim%last_limits%dt, sim%cycle_dt)
+        if (sim%cfg%numerics%fixed_dt > 0.0_wp) dt = sim%cfg%numerics%fixed_dt
+        sim%uncapped_dt = dt
+        ends = .false.
+        if (present(dt_cap)) then
+            if (dt_cap <= dt) ends = .true.
+            dt = min(dt, dt_cap)
+        end if
+        starts = mod(sim%cycle_step, sim%level_substeps) == 0
+        call verlet_drift_levels(sim%p, dt, starts, sim%level_span, sim%level_elapsed, &
+            integrated_density(sim), sim%step_moved)
+        sim%cycle_step = sim%cycle_step + 1
+        ends = ends .or. mod(sim%cycle_step, sim%level_substeps) == 0
+        call refresh_halo(sim, env)
+        ! a particle in the middle of its level's step moves dt |v_half| per step, and its
+        ! half kick may be half the longest level step long
+        max_shift = (sim%last_limits%max_speed + 0.5_wp * maxval(sim%level_span) * &
+            sim%last_limits%max_accel) * dt
+        call prepare_boundaries(sim, dt, max_shift)
+        ! the virtual particles of the levels whose rates are due take the other level's
+        ! fields where they now are, so those rates see the other level as it is
+        call refresh_virtuals(sim, env, ends)
+        call verlet_close_levels(sim%p, ends, sim%level_span, sim%level_elapsed, &
+            integrated_density(sim))
+        call evaluate_rates(sim, env, ends)
+        call verlet_kick_levels(sim%p, ends, sim%level_elapsed, integrated_density(sim))
+        where (ends) sim%level_elapsed = 0.0_wp
+        if (all(ends)) sim%cycle_step = 0
+        sim%time = sim%time + dt
+        sim%step = sim%step + 1
+        sim%last_limits%dt = dt
+        call migrate_and_rebuild(sim, env, subcycled=.true.)
+        call update_transition_zones(sim, env)
+        call check_health(sim, env)
+    end subroutine subcycled_verlet_step
+
+    !> A new cycle of sub-cycled Verlet (subcycled_verlet_step) from the current limits: the
+    !> finest level's step, and each level's span from its own smoothing length. The log
+    !> says when the spans change.
+    subroutine plan_cycle(sim)
+        type(simulation_t), intent(inout) :: sim
+        real(wp) :: limit(0:sim%zones%n_levels - 1)
+        integer :: lv, before(0:sim%zones%n_levels - 1)
+        type(timestep_limits_t) :: lim
+        character(len=256) :: line
+        sim%cycle_dt = sim%last_limits%dt
+        if (sim%cfg%numerics%fixed_dt > 0.0_wp) sim%cycle_dt = sim%cfg%numerics%fixed_dt
+        do lv = 0, sim%zones%n_levels - 1
+            lim = timestep_limits(sim%level_phys(lv)%kernel%h, sim%phys%c, &
+                sim%last_limits%max_speed, sim%phys%nu, sim%last_limits%max_accel, &
+                sim%cfg%numerics%cfl, sim%cfg%numerics%viscous_safety, &
+                sim%cfg%numerics%force_safety)
+            limit(lv) = lim%dt
+        end do
+        before = sim%level_substeps
+        sim%level_substeps = level_substeps(sim%cycle_dt, limit, &
+            sim%cfg%refinement%max_subcycles)
+        sim%level_span = real(sim%level_substeps, wp) * sim%cycle_dt
+        sim%level_elapsed = 0.0_wp
+        if (any(before /= sim%level_substeps)) then
+            write(line, '(a,i0,a,*(i0,:,", "))') 'step ', sim%step, &
+                ': sub-cycling, finest-level steps per step of levels 0.. : ', &
+                sim%level_substeps
+            call log_info(trim(line))
+        end if
+    end subroutine plan_cycle
+
+    !> Is every level at the end of a step (always, without sub-cycling)? Snapshots,
+    !> checkpoints and the end of a run wait for it (sph_schedule).
+    pure logical function simulation_synchronised(sim)
+        type(simulation_t), intent(in) :: sim
+        simulation_synchronised = sim%cycle_step == 0
+    end function simulation_synchronised
 
     !> Half a step from the saved step-start state with the step-start rates.
     subroutine predictor(sim, dt)
@@ -620,12 +737,15 @@ contains
     !> after the drift since the list was built;
     !> the list stays valid while two particles cannot close in by more than the skin.
     !> Mirrors change with the ghosts, so mirror walls always rebuild.
-    subroutine prepare_boundaries(sim, dt)
+    !> shift: the bound to use instead (sub-cycling).
+    subroutine prepare_boundaries(sim, dt, shift)
         type(simulation_t), intent(inout) :: sim
         real(wp), intent(in) :: dt
+        real(wp), intent(in), optional :: shift
         real(wp) :: max_shift
         max_shift = stage_displacement_bound(sim%last_limits%max_speed, &
             sim%last_limits%max_accel, dt, sim%verlet)
+        if (present(shift)) max_shift = shift
         if (2.0_wp * (sim%drift + max_shift) >= sim%list_skin .or. uses_mirrors(sim) .or. &
             sim%p%n_total /= sim%p%n_owned + sim%p%n_ghost) then
             call refresh_neighbours(sim)
@@ -676,25 +796,24 @@ contains
     !> ghosts, mirrors and the list are rebuilt (cell order, wrapped periodic positions).
     !> The halo reaches support + skin + list_skin, so its ghosts cover every pair within the
     !> support while 2 drift + the motion of one step stays within skin + list_skin.
-    subroutine migrate_and_rebuild(sim, env)
+    !> The multi-resolution Verlet step (subcycled: present) refreshes the virtual particles
+    !> itself, before its rates, and has the zones made anew only once every level is at the
+    !> end of a step.
+    subroutine migrate_and_rebuild(sim, env, subcycled)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
-        real(wp) :: start
-        integer :: previous
-        sim%drift = sim%drift + global_max(env, max_step_displacement(sim%p))
+        logical, intent(in), optional :: subcycled
+        if (present(subcycled)) then
+            sim%drift = sim%drift + global_max(env, sim%step_moved)
+        else
+            sim%drift = sim%drift + global_max(env, max_step_displacement(sim%p))
+        end if
         if (2.0_wp * sim%drift < 0.5_wp * sim%list_skin) then
-            call refresh_ghosts(sim, env, moved_fields(sim))
+            ! the sub-cycled step reads no ghost field before its next drift refreshes them
+            ! (a zone update or a rebalance builds the halo anew)
+            if (.not. present(subcycled)) call refresh_ghosts(sim, env, moved_fields(sim))
             if (uses_mirrors(sim)) call refresh_neighbours(sim)
-            if (multires(sim)) then
-                ! the virtual particles take the other level's fields where they now are
-                call timers_enter(sim%timers, TIMER_OTHER, previous)
-                start = MPI_Wtime()
-                call refresh_virtual_fields(sim%zones, sim%level_phys, sim%p, sim%level_stats, &
-                    sim%refresh_plan, sim%list_skin)
-                call refresh_ghosts(sim, env, moved_fields(sim))
-                sim%transition_seconds = sim%transition_seconds + (MPI_Wtime() - start)
-                call timers_leave(sim%timers, previous)
-            end if
+            if (multires(sim) .and. .not. present(subcycled)) call refresh_virtuals(sim, env)
         else
             call migrate(sim, env)
             call simulation_prepare_neighbours(sim, env)
@@ -702,6 +821,23 @@ contains
         end if
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
     end subroutine migrate_and_rebuild
+
+    !> The virtual particles (of the levels `ended`, all when absent) take the other level's
+    !> fields where they now are; their ghosts follow.
+    subroutine refresh_virtuals(sim, env, ended)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        logical, intent(in), optional :: ended(0:)
+        real(wp) :: start
+        integer :: previous
+        call timers_enter(sim%timers, TIMER_OTHER, previous)
+        start = MPI_Wtime()
+        call refresh_virtual_fields(sim%zones, sim%level_phys, sim%p, sim%level_stats, &
+            sim%refresh_plan, sim%list_skin, ended, step_state=present(ended))
+        call refresh_ghosts(sim, env, moved_fields(sim))
+        sim%transition_seconds = sim%transition_seconds + (MPI_Wtime() - start)
+        call timers_leave(sim%timers, previous)
+    end subroutine refresh_virtuals
 
     !> Multi-resolution steps: conversions and new virtual particles in the transition zones
     !> (sph_transition_driver), then the halo and the neighbour list for the new set. The
@@ -716,10 +852,12 @@ contains
         type(mpi_env_t), intent(in) :: env
         real(wp) :: start
         integer :: previous
-        if (.not. sim%zones_due) return
+        if (.not. sim%zones_due .or. .not. simulation_synchronised(sim)) return
         call timers_enter(sim%timers, TIMER_OTHER, previous)
         sim%zones_due = .false.
         start = MPI_Wtime()
+        ! the sub-cycled step leaves the ghosts at their state before its kick
+        if (sim%subcycling) call refresh_ghosts(sim, env, moved_fields(sim))
         call update_transition_zones_of(env, sim%zones, sim%level_phys, sim%solids, sim%domain, &
             sim%cfg%domain%box_lo, sim%cfg%domain%box_hi, sim%p, sim%next_id, sim%level_stats)
         call simulation_prepare_neighbours(sim, env)
@@ -727,6 +865,8 @@ contains
         call set_virtual_masses(sim%zones, sim%level_phys, sim%p, sim%nl)
         call refresh_ghosts(sim, env, HALO_GHOST)
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+        ! the new virtual particles have no rates yet: verlet evaluates them before its step
+        sim%rates_stale = .true.
         sim%transition_seconds = sim%transition_seconds + (MPI_Wtime() - start)
         call timers_leave(sim%timers, previous)
     end subroutine update_transition_zones

@@ -50,6 +50,20 @@ contains
         call setup_level_physics(sim)
         allocate(sim%wall_forces(3, 2, size(sim%solids%list)))
         sim%wall_forces = 0.0_wp
+        ! multi-resolution Verlet steps level by level (max_subcycles = 1: all alike)
+        sim%subcycling = multires(sim) .and. trim(cfg%numerics%integrator) == 'verlet'
+        allocate(sim%level_substeps(0:sim%zones%n_levels - 1), &
+            sim%level_span(0:sim%zones%n_levels - 1), &
+            sim%level_elapsed(0:sim%zones%n_levels - 1))
+        sim%level_substeps = 1
+        sim%level_span = 0.0_wp
+        sim%level_elapsed = 0.0_wp
+        sim%cycle_step = 0
+        if (sim%subcycling) then
+            allocate(sim%level_wall_forces(3, 2, size(sim%solids%list), &
+                0:sim%zones%n_levels - 1))
+            sim%level_wall_forces = 0.0_wp
+        end if
         call reference_from_config(cfg, sim%ref, stat, errmsg)
         if (stat /= 0) call fatal_collective('set-up', errmsg)
         periodic = .false.
@@ -122,7 +136,7 @@ contains
         if (sim%timers%current /= TIMER_IDLE) sim%timers%rate_evaluations = &
             sim%timers%rate_evaluations + 1
         if (multires(sim)) then
-            call evaluate_level_rates(sim, env)
+            call evaluate_level_rates(sim, env, levels)
         else
             call evaluate_uniform_rates(sim, env)
         end if
@@ -156,13 +170,20 @@ contains
 
     !> evaluate_rates for several levels: every stage level by level with the level's physics
     !> (the neighbour list pairs particles of one level only), one halo refresh per stage.
-    subroutine evaluate_level_rates(sim, env)
+    !> levels: only these levels' stages (sub-cycling). With sub-cycling the forces on the
+    !> solids are the sum of each level's last ones.
+    subroutine evaluate_level_rates(sim, env, levels)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
+        logical, intent(in), optional :: levels(0:)
+        logical :: active(0:sim%zones%n_levels - 1)
         integer :: lv
+        active = .true.
+        if (present(levels)) active = levels
         if (sim%phys%density_method == DENSITY_SUMMATION) then
             do lv = 0, sim%zones%n_levels - 1
-                call compute_summation_density(sim%level_phys(lv), sim%p, sim%nl, lv)
+                if (active(lv)) call compute_summation_density(sim%level_phys(lv), sim%p, &
+                    sim%nl, lv)
             end do
             call refresh_ghosts(sim, env, HALO_DENSITY)
         end if
@@ -170,21 +191,34 @@ contains
         if (sim%phys%walls == WALLS_MORRIS .and. &
             sim%phys%wall_pressure == WALL_PRESSURE_EXTRAPOLATED) then
             do lv = 0, sim%zones%n_levels - 1
-                call extrapolate_wall_density(sim%level_phys(lv), sim%p, sim%nl, lv)
+                if (active(lv)) call extrapolate_wall_density(sim%level_phys(lv), sim%p, &
+                    sim%nl, lv)
             end do
             call refresh_ghosts(sim, env, HALO_DENSITY)
             call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
         end if
         if (sim%phys%viscosity == VISCOSITY_STRAIN_RATE) then
             do lv = 0, sim%zones%n_levels - 1
-                call compute_strain_rate(sim%level_phys(lv), sim%p, sim%nl, sim%solids, lv)
+                if (active(lv)) call compute_strain_rate(sim%level_phys(lv), sim%p, sim%nl, &
+                    sim%solids, lv)
             end do
             call refresh_ghosts(sim, env, HALO_STRAIN)
         end if
-        sim%wall_forces = 0.0_wp
+        if (.not. sim%subcycling) then
+            sim%wall_forces = 0.0_wp
+            do lv = 0, sim%zones%n_levels - 1
+                call compute_rates(sim%level_phys(lv), sim%p, sim%nl, sim%solids, &
+                    sim%wall_forces, lv)
+            end do
+            return
+        end if
         do lv = 0, sim%zones%n_levels - 1
-            call compute_rates(sim%level_phys(lv), sim%p, sim%nl, sim%solids, sim%wall_forces, lv)
+            if (.not. active(lv)) cycle
+            sim%level_wall_forces(:, :, :, lv) = 0.0_wp
+            call compute_rates(sim%level_phys(lv), sim%p, sim%nl, sim%solids, &
+                sim%level_wall_forces(:, :, :, lv), lv)
         end do
+        sim%wall_forces = sum(sim%level_wall_forces, dim=4)
     end subroutine evaluate_level_rates
 
     module procedure stable_timestep

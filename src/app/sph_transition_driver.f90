@@ -387,13 +387,21 @@ contains
     !> hold the entry state. Needs current ghosts; no MPI. plan: the candidates (made anew
     !> when not valid or when the particle counts changed; the caller invalidates it at every
     !> rebuild), margin: a bound on how far any particle moves until the next rebuild.
-    subroutine refresh_virtual_fields(zones, level_phys, p, stats, plan, margin)
+    !> levels: refresh only the virtual particles of these levels (sub-cycling: those whose
+    !> step has just ended); all when absent. step_state: the refreshed values also become
+    !> the state the Verlet kick starts from (v_old, rho_old, e_old), so that a virtual
+    !> particle's fields do not carry on an integration of their own from one refresh to the
+    !> next (its velocity would gather the body force its cut support leaves unbalanced, and
+    !> its motion with it).
+    subroutine refresh_virtual_fields(zones, level_phys, p, stats, plan, margin, levels, &
+            step_state)
         type(zones_t), intent(in) :: zones
         type(physics_t), intent(in) :: level_phys(0:)
         type(particles_t), intent(inout) :: p
         type(level_stats_t), intent(inout) :: stats
         type(refresh_plan_t), intent(inout) :: plan
         real(wp), intent(in) :: margin
+        logical, intent(in), optional :: levels(0:), step_state
         integer :: target, source, j, n_fb, n_empty, n_clip, dim
         integer, allocatable :: dst(:), src(:)
         logical, allocatable :: changed(:)
@@ -405,6 +413,9 @@ contains
         allocate(new_fields(5, p%n_owned), changed(p%n_owned))
         changed = .false.
         do target = 0, zones%n_levels - 1
+            if (present(levels)) then
+                if (.not. levels(target)) cycle
+            end if
             do source = max(target - 1, 0), min(target + 1, zones%n_levels - 1)
                 if (source == target) cycle
                 associate (cand => plan%virtuals(target)%i)
@@ -445,6 +456,14 @@ contains
             p%v(:, j) = new_fields(1:3, j)
             p%rho(j) = new_fields(4, j)
             p%e(j) = new_fields(5, j)
+        end do
+        if (.not. present(step_state)) return
+        if (.not. step_state) return
+        do j = 1, p%n_owned
+            if (.not. changed(j)) cycle
+            p%v_old(:, j) = p%v(:, j)
+            p%rho_old(j) = p%rho(j)
+            p%e_old(j) = p%e(j)
         end do
     end subroutine refresh_virtual_fields
 

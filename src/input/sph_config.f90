@@ -171,10 +171,6 @@ contains
         if (cfg%numerics%transport_velocity .and. size(regions) > 0) call grp(5)%error( &
             'transport_velocity', '.true. works with one resolution level only (no ' // &
             '&region groups)')
-        ! the transition zones' virtual particles are made anew without rates to keep
-        if (trim(cfg%numerics%integrator) == 'verlet' .and. size(regions) > 0) &
-            call grp(5)%error('integrator', "'verlet' works with one resolution level " // &
-            "only (no &region groups); use integrator = 'predictor_corrector'")
         if (sum(grp%n_errors) == 0 .and. sum(bodies%n_errors) == 0 .and. &
             sum(regions%n_errors) == 0) call check_refinement(grp(10), regions, grp(3), &
             grp(5), grp(9), cfg%refinement, cfg%regions, cfg%domain, cfg%numerics, cfg%remesh)

@@ -12,6 +12,15 @@
 !>                 new positions are evaluated with
 !>   verlet_kick   v^{n+1} = v_half + dt/2 a^{n+1} (rho, e likewise)
 !> The half-step values are kept in v_old, rho_old, e_old; x_old holds x^n.
+!>
+!> Sub-cycled velocity Verlet (multi-resolution runs, &refinement max_subcycles): level L
+!> takes one Verlet step of span H_L = k_L dt over k_L steps dt of the finest level. At its
+!> start the half kick with H_L / 2; at every fine step every particle drifts, the state of
+!> a level in the middle of its step being the start state carried on with the start
+!> rates (x = x^n + t v_half, v = v^n + t a^n, t the time since the level's step began);
+!> at its end the rates of the levels that end are evaluated and they get their second half
+!> kick. A step cut short (an output time) is closed with half kicks of the time it
+!> actually took. With every k_L = 1 this is velocity Verlet, bit for bit.
 module sph_integrator
     use sph_kinds, only: wp
     use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL
@@ -19,6 +28,7 @@ module sph_integrator
     private
     public :: save_step_start, advance, max_step_displacement
     public :: verlet_drift, verlet_kick, stage_displacement_bound
+    public :: verlet_drift_levels, verlet_close_levels, verlet_kick_levels
 
 contains
 
@@ -83,50 +93,115 @@ contains
     !> The first half kick and the drift of velocity Verlet (module header), for owned
     !> particles with the kept rates; then the state estimate for the rate evaluation.
     !> Walls stay in place; their density follows the continuity equation when it is
-    !> integrated.
+    !> integrated. One resolution level (every particle on level 0): the levels' drift with
+    !> one level stepping at dt, which is this step bit for bit.
     subroutine verlet_drift(p, dt, integrate_density)
         type(particles_t), intent(inout) :: p
         real(wp), intent(in) :: dt
         logical, intent(in) :: integrate_density
-        real(wp) :: half
-        integer :: i
-        half = 0.5_wp * dt
-        do i = 1, p%n_owned
-            p%x_old(:, i) = p%x(:, i)
-            p%v_old(:, i) = p%v(:, i)
-            p%rho_old(i) = p%rho(i)
-            p%e_old(i) = p%e(i)
-            if (.not. integrated(p%kind(i))) cycle
-            ! walls stay in place; only their density follows the continuity equation
-            if (integrate_density) then
-                p%rho_old(i) = p%rho(i) + half * p%drhodt(i)
-                p%rho(i) = p%rho_old(i) + half * p%drhodt(i)
-            end if
-            if (p%kind(i) == KIND_WALL) cycle
-            p%v_old(:, i) = p%v(:, i) + half * p%dvdt(:, i)
-            p%x(:, i) = p%x(:, i) + dt * p%v_old(:, i)
-            p%v(:, i) = p%v_old(:, i) + half * p%dvdt(:, i)
-            p%e_old(i) = p%e(i) + half * p%dedt(i)
-            p%e(i) = p%e_old(i) + half * p%dedt(i)
-        end do
+        real(wp) :: elapsed(1), moved
+        elapsed = 0.0_wp
+        call verlet_drift_levels(p, dt, [.true.], [dt], elapsed, integrate_density, moved)
     end subroutine verlet_drift
 
-    !> The second half kick of velocity Verlet with the rates of the new positions.
+    !> The second half kick of velocity Verlet with the rates of the new positions (one
+    !> resolution level, as verlet_drift).
     subroutine verlet_kick(p, dt, integrate_density)
         type(particles_t), intent(inout) :: p
         real(wp), intent(in) :: dt
         logical, intent(in) :: integrate_density
-        real(wp) :: half
-        integer :: i
-        half = 0.5_wp * dt
+        call verlet_kick_levels(p, [.true.], [dt], integrate_density)
+    end subroutine verlet_kick
+
+    !> The fine step dt of sub-cycled Verlet (module header) for owned particles: the levels
+    !> with `starts` begin a step of span(L) (x_old = x^n; the half kick into v_old, rho_old,
+    !> e_old), then every level drifts to elapsed(L) + dt since its step began, and elapsed
+    !> advances. moved: the largest distance an owned particle moved in this fine step.
+    subroutine verlet_drift_levels(p, dt, starts, span, elapsed, integrate_density, moved)
+        type(particles_t), intent(inout) :: p
+        real(wp), intent(in) :: dt
+        logical, intent(in) :: starts(0:)
+        real(wp), intent(in) :: span(0:)
+        real(wp), intent(inout) :: elapsed(0:)
+        logical, intent(in) :: integrate_density
+        real(wp), intent(out) :: moved
+        ! per level: the half kick, the time since the step began and since its middle
+        real(wp) :: half(0:size(span) - 1), t(0:size(span) - 1), since_half(0:size(span) - 1)
+        real(wp) :: moved2
+        integer :: i, lv
+        half = 0.5_wp * span
+        t = elapsed + dt
+        since_half = t - half
+        moved2 = 0.0_wp
         do i = 1, p%n_owned
             if (.not. integrated(p%kind(i))) cycle
+            lv = p%level(i)
+            if (starts(lv)) then
+                p%x_old(:, i) = p%x(:, i)
+                p%v_old(:, i) = p%v(:, i)
+                p%rho_old(i) = p%rho(i)
+                p%e_old(i) = p%e(i)
+                if (integrate_density) p%rho_old(i) = p%rho(i) + half(lv) * p%drhodt(i)
+                if (p%kind(i) /= KIND_WALL) then
+                    p%v_old(:, i) = p%v(:, i) + half(lv) * p%dvdt(:, i)
+                    p%e_old(i) = p%e(i) + half(lv) * p%dedt(i)
+                end if
+            end if
+            if (integrate_density) p%rho(i) = p%rho_old(i) + since_half(lv) * p%drhodt(i)
+            if (p%kind(i) == KIND_WALL) cycle
+            p%x(:, i) = p%x_old(:, i) + t(lv) * p%v_old(:, i)
+            p%v(:, i) = p%v_old(:, i) + since_half(lv) * p%dvdt(:, i)
+            p%e(i) = p%e_old(i) + since_half(lv) * p%dedt(i)
+            moved2 = max(moved2, p%v_old(1, i)**2 + p%v_old(2, i)**2 + p%v_old(3, i)**2)
+        end do
+        moved = dt * sqrt(moved2)
+        elapsed = t
+    end subroutine verlet_drift_levels
+
+    !> Before the rates of the levels that `ends` are evaluated: a level whose step took
+    !> elapsed(L) instead of span(L) has its first half kick made elapsed(L) / 2 long, so
+    !> that both half kicks are as long as the step was (its positions keep the drift they
+    !> had, a difference of (span - elapsed) elapsed / 2 times the acceleration).
+    subroutine verlet_close_levels(p, ends, span, elapsed, integrate_density)
+        type(particles_t), intent(inout) :: p
+        logical, intent(in) :: ends(0:)
+        real(wp), intent(in) :: span(0:), elapsed(0:)
+        logical, intent(in) :: integrate_density
+        real(wp) :: short
+        integer :: i, lv
+        if (.not. any(ends .and. elapsed /= span)) return
+        do i = 1, p%n_owned
+            if (.not. integrated(p%kind(i))) cycle
+            lv = p%level(i)
+            if (.not. ends(lv) .or. elapsed(lv) == span(lv)) cycle
+            short = 0.5_wp * (elapsed(lv) - span(lv))
+            if (integrate_density) p%rho_old(i) = p%rho_old(i) + short * p%drhodt(i)
+            if (p%kind(i) == KIND_WALL) cycle
+            p%v_old(:, i) = p%v_old(:, i) + short * p%dvdt(:, i)
+            p%e_old(i) = p%e_old(i) + short * p%dedt(i)
+        end do
+    end subroutine verlet_close_levels
+
+    !> The second half kick, elapsed(L) / 2 long, of the levels that `ends`, with the rates
+    !> just evaluated at their new positions.
+    subroutine verlet_kick_levels(p, ends, elapsed, integrate_density)
+        type(particles_t), intent(inout) :: p
+        logical, intent(in) :: ends(0:)
+        real(wp), intent(in) :: elapsed(0:)
+        logical, intent(in) :: integrate_density
+        real(wp) :: half
+        integer :: i, lv
+        do i = 1, p%n_owned
+            if (.not. integrated(p%kind(i))) cycle
+            lv = p%level(i)
+            if (.not. ends(lv)) cycle
+            half = 0.5_wp * elapsed(lv)
             if (integrate_density) p%rho(i) = p%rho_old(i) + half * p%drhodt(i)
             if (p%kind(i) == KIND_WALL) cycle
             p%v(:, i) = p%v_old(:, i) + half * p%dvdt(:, i)
             p%e(i) = p%e_old(i) + half * p%dedt(i)
         end do
-    end subroutine verlet_kick
+    end subroutine verlet_kick_levels
 
     !> How far a particle can move before the rates of a step are evaluated, from the
     !> largest speed and acceleration of the step start: the predictor's half step

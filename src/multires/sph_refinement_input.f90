@@ -23,6 +23,8 @@ module sph_refinement_input
     public :: check_refinement, minimum_transition_width, MAX_REGION_LEVEL
 
     integer, parameter :: MAX_REGION_LEVEL = 3
+    !> largest &refinement max_subcycles
+    integer, parameter :: MAX_SUBCYCLES = 64
     integer, parameter :: name_len = 32
     !> tolerance, in units of dx, of the lattice alignment and of the nesting margins
     real(wp), parameter :: lattice_tol = 1.0e-9_wp
@@ -30,6 +32,9 @@ module sph_refinement_input
     type :: refinement_input_t
         real(wp) :: transition_width = 0.0_wp   !< m, as given; 0 = automatic
         logical :: write_virtual = .false.      !< snapshots also hold virtual particles
+        !> a level's step may span up to this many steps of the finest level (a power of 2;
+        !> 1 = every level takes the finest level's step)
+        integer :: max_subcycles = 1
         real(wp) :: width = 0.0_wp              !< m, resolved (set by check_refinement)
     end type refinement_input_t
 
@@ -51,6 +56,12 @@ contains
             unit='m', doc='width of each transition zone; 0 = one kernel support of level 0')
         call grp%get_logical('write_virtual', ref%write_virtual, .false., &
             doc='snapshots also hold the virtual particles (kind 2)')
+        call grp%get_int('max_subcycles', ref%max_subcycles, 1, min=1, max=MAX_SUBCYCLES, &
+            doc='a coarser level steps once per up to this many steps of the finest level, ' // &
+            'as its own time-step limits allow (a power of 2; 1 = one shared time step)')
+        if (iand(ref%max_subcycles, ref%max_subcycles - 1) /= 0) call grp%error( &
+            'max_subcycles', int_text(int(ref%max_subcycles, i8)) // ' is not a power of 2: ' // &
+            'use 1, 2, 4, 8, ... up to ' // int_text(int(MAX_SUBCYCLES, i8)))
     end subroutine read_refinement_input
 
     !> Read every &region instance (grps, in file order) and check each on its own against the
@@ -215,11 +226,35 @@ contains
             'initial particles from a file' // not_yet // "; with &region leave it '' " // &
             '(the lattice)')
 
+        if (ref%max_subcycles > 1) call check_subcycling()
+        ! the multi-resolution Verlet step (sph_stepper) has no shifting stage
+        if (trim(num%integrator) == 'verlet' .and. trim(num%shifting) /= 'none') &
+            call num_grp%error('shifting', "'" // trim(num%shifting) // "' with " // &
+            "integrator = 'verlet'" // not_yet // "; use shifting = 'none' or integrator = " // &
+            "'predictor_corrector'")
+
         do r = 1, size(regions)
             if (regions(r)%level >= 2) call check_nesting(r)
         end do
 
     contains
+
+        !> Sub-cycling is built on velocity Verlet with integrated densities and no shifting
+        !> (sph_integrator): the predictor-corrector's mid-step rates, a summed density and
+        !> a shift after the step all need every level at the same time.
+        subroutine check_subcycling()
+            character(len=:), allocatable :: needs
+            needs = int_text(int(ref%max_subcycles, i8)) // ' (sub-cycling) needs '
+            if (trim(num%integrator) /= 'verlet') call ref_grp%error('max_subcycles', &
+                needs // "&numerics integrator = 'verlet' (it is '" // &
+                trim(num%integrator) // "'); or set max_subcycles = 1")
+            if (trim(num%density_method) /= 'continuity') call ref_grp%error('max_subcycles', &
+                needs // "&numerics density_method = 'continuity' (it is '" // &
+                trim(num%density_method) // "'); or set max_subcycles = 1")
+            if (trim(num%shifting) /= 'none') call ref_grp%error('max_subcycles', &
+                needs // "&numerics shifting = 'none' (it is '" // trim(num%shifting) // &
+                "'); or set max_subcycles = 1")
+        end subroutine check_subcycling
 
         !> Region r (level L >= 2) lies inside a region of level L - 1 with a margin of at
         !> least the transition width where its boundary is strictly inside the domain:
