@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """The benchmark suite's table (bench/run): reads the run logs in OUT/logs, prints one table
 of medians (with ranges) per case, integrator and rank count, and writes OUT/bench.csv and
-OUT/bench.png. Then the remeshing and multi-resolution benchmarks' own tables.
+OUT/bench.png. Then the remeshing and multi-resolution benchmarks' own tables, and the
+multi-resolution cost study's plot (the thesis' Figure 5-2) as OUT/multires.png.
 
     bench/bench_report.py OUT
 
@@ -127,8 +128,73 @@ def main():
             if os.path.exists(path):
                 print(open(path).read().rstrip())
     plot(rows, os.path.join(out, 'bench.png'))
-    print('\n# written: %s, %s' % (os.path.join(out, 'bench.csv'),
-                                   os.path.join(out, 'bench.png')))
+    written = [os.path.join(out, 'bench.csv'), os.path.join(out, 'bench.png')]
+    studies = {np: parse_multires(os.path.join(out, 'multires_np%d.txt' % np))
+               for np in (1, 2)}
+    if any(studies.values()):
+        plot_multires(studies, os.path.join(out, 'multires.png'))
+        written.append(os.path.join(out, 'multires.png'))
+    print('\n# written: %s' % ', '.join(written))
+
+
+def parse_multires(path):
+    """The rows of sphremesh_bench_multires' table: fine spacing (L/n), uniform particles,
+    multi-resolution real and virtual particles, then per comparison (predictor-corrector,
+    Verlet sub-cycled) the wall seconds per simulated second of the uniform and the
+    multi-resolution run, the zones' part and the ratio. [] when the file is missing."""
+    if not os.path.exists(path):
+        return []
+    rows = []
+    for line in open(path):
+        words = line.split()
+        if not words or not words[0].startswith('L/'):
+            continue
+        numbers = [float(w) for w in words[1:] if w != '+']
+        row = {'fine': words[0], 'uniform_particles': int(numbers[0]),
+               'real': int(numbers[1]), 'virtual': int(numbers[2])}
+        for k, name in enumerate(('pc', 'verlet')):
+            uniform, multi, zones, ratio = numbers[3 + 4 * k:7 + 4 * k]
+            row[name] = {'uniform': uniform, 'multi': multi, 'zones': zones, 'ratio': ratio}
+        rows.append(row)
+    return rows
+
+
+def plot_multires(studies, path):
+    """The cost study: wall time per simulated time of both runs, and their ratio, against
+    the uniform run's particle count, for each comparison and rank count."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.5))
+    names = {'pc': 'predictor-corrector, one step', 'verlet': 'Verlet, coarse sub-cycled'}
+    for np, rows in sorted(studies.items()):
+        if not rows:
+            continue
+        n = [r['uniform_particles'] for r in rows]
+        for name, marker in (('pc', 'o'), ('verlet', 's')):
+            label = '%s, %d rank%s' % (names[name], np, 's' if np > 1 else '')
+            right.plot(n, [r[name]['ratio'] for r in rows], marker=marker,
+                       ls='-' if np == 1 else '--', label=label)
+            if name == 'verlet':
+                left.plot(n, [r[name]['uniform'] for r in rows], marker='o',
+                          ls='-' if np == 1 else '--', label='uniform fine, %d rank(s)' % np)
+                left.plot(n, [r[name]['multi'] for r in rows], marker='s',
+                          ls='-' if np == 1 else '--', label='multi-resolution, %d rank(s)' % np)
+    left.set_xscale('log')
+    left.set_yscale('log')
+    left.set_xlabel('particles of the uniformly fine run')
+    left.set_ylabel('wall s per simulated s (Verlet)')
+    left.legend(fontsize=8)
+    left.grid(True, which='both', alpha=0.3)
+    right.axhline(0.5, color='k', ls=':', lw=0.8)
+    right.text(2.2e3, 0.52, 'target 0.5', fontsize=8)
+    right.set_xscale('log')
+    right.set_xlabel('particles of the uniformly fine run')
+    right.set_ylabel('multi-resolution / uniform wall time')
+    right.legend(fontsize=8)
+    right.grid(True, which='both', alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 def plot(rows, path):

@@ -89,5 +89,33 @@ class TestBenchReport(unittest.TestCase):
         self.assertEqual(walls[('a', 'verlet')], 2.0)
 
 
+MULTIRES_TABLE = """# sphremesh multi-resolution benchmark (thesis Fig. 5-2), 1 rank(s); wall s per simulated s
+#                                               ---- predictor-corrector, one time step ----   ---- Verlet, coarse level sub-cycled (4) ----
+# dx fine   particles: uniform  multi (real + virtual)      uniform       multi    (zones) multi/uniform      uniform       multi    (zones) multi/uniform
+  L/160              106240        47356 + 2080         4.6335E+03  2.5991E+03   3.35E+02       0.561         2.8294E+03  1.4402E+03   3.24E+02       0.509
+  L/320              417280       184156 + 4160         8.0376E+04  4.4107E+04   3.42E+03       0.549         4.2030E+04  1.8282E+04   2.56E+03       0.435
+"""
+
+
+class TestMultiresStudy(unittest.TestCase):
+
+    def test_rows_and_plot(self):
+        out = tempfile.mkdtemp()
+        path = os.path.join(out, 'multires_np1.txt')
+        with open(path, 'w') as f:
+            f.write(MULTIRES_TABLE)
+        rows = bench_report.parse_multires(path)
+        self.assertEqual([r['fine'] for r in rows], ['L/160', 'L/320'])
+        self.assertEqual(rows[1]['uniform_particles'], 417280)
+        self.assertEqual((rows[1]['real'], rows[1]['virtual']), (184156, 4160))
+        self.assertAlmostEqual(rows[1]['pc']['ratio'], 0.549)
+        self.assertAlmostEqual(rows[1]['verlet']['multi'], 1.8282e4)
+        self.assertAlmostEqual(rows[0]['verlet']['zones'], 3.24e2)
+        self.assertEqual(bench_report.parse_multires(os.path.join(out, 'missing.txt')), [])
+        png = os.path.join(out, 'multires.png')
+        bench_report.plot_multires({1: rows, 2: []}, png)
+        self.assertTrue(os.path.getsize(png) > 0)
+
+
 if __name__ == '__main__':
     unittest.main()
