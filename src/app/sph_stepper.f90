@@ -26,7 +26,7 @@ module sph_stepper
     use sph_cell_list, only: neighbour_list_t, build_neighbour_list, cell_sort_order
     use sph_rates, only: update_pressure, release_rates_scratch
     use sph_shifting, only: shifting_diffusion, shift_particles
-    use sph_timestep, only: timestep_limits_t, timestep_limits, level_substeps
+    use sph_timestep, only: timestep_limits_t
     use sph_integrator, only: save_step_start, advance, max_step_displacement, verlet_drift, &
         verlet_kick, stage_displacement_bound, verlet_drift_levels, verlet_close_levels, &
         verlet_kick_levels
@@ -165,6 +165,15 @@ module sph_stepper
             type(mpi_env_t), intent(in) :: env
             logical, intent(in), optional :: levels(0:)
         end subroutine evaluate_rates
+
+        !> Sub-cycling: the steps of the finest level that each level's step would span with
+        !> finest step dt and the last limits' speed and acceleration (sph_timestep
+        !> level_substeps, each level's own smoothing length, &refinement max_subcycles).
+        module function planned_substeps(sim, dt) result(k)
+            type(simulation_t), intent(in) :: sim
+            real(wp), intent(in) :: dt
+            integer :: k(0:sim%zones%n_levels - 1)
+        end function planned_substeps
 
         !> Time-step limit for the current rates (collective).
         module function stable_timestep(sim, env) result(lim)
@@ -676,22 +685,12 @@ contains
     !> says when the spans change.
     subroutine plan_cycle(sim)
         type(simulation_t), intent(inout) :: sim
-        real(wp) :: limit(0:sim%zones%n_levels - 1)
-        integer :: lv, before(0:sim%zones%n_levels - 1)
-        type(timestep_limits_t) :: lim
+        integer :: before(0:sim%zones%n_levels - 1)
         character(len=256) :: line
         sim%cycle_dt = sim%last_limits%dt
         if (sim%cfg%numerics%fixed_dt > 0.0_wp) sim%cycle_dt = sim%cfg%numerics%fixed_dt
-        do lv = 0, sim%zones%n_levels - 1
-            lim = timestep_limits(sim%level_phys(lv)%kernel%h, sim%phys%c, &
-                sim%last_limits%max_speed, sim%phys%nu, sim%last_limits%max_accel, &
-                sim%cfg%numerics%cfl, sim%cfg%numerics%viscous_safety, &
-                sim%cfg%numerics%force_safety)
-            limit(lv) = lim%dt
-        end do
         before = sim%level_substeps
-        sim%level_substeps = level_substeps(sim%cycle_dt, limit, &
-            sim%cfg%refinement%max_subcycles)
+        sim%level_substeps = planned_substeps(sim, sim%cycle_dt)
         sim%level_span = real(sim%level_substeps, wp) * sim%cycle_dt
         sim%level_elapsed = 0.0_wp
         if (any(before /= sim%level_substeps)) then

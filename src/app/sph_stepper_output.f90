@@ -141,6 +141,12 @@ contains
             sim%cfg%run%t_end - sim%time) / limit_value, i8), ' steps to t_end = ', &
             sim%cfg%run%t_end, ' s at that step'
         call log_info(trim(line))
+        if (sim%subcycling) then
+            sim%last_limits = lim
+            write(line, '(a,*(i0,:,", "))') 'check: sub-cycling, steps of the finest level ' // &
+                'per step of levels 0.. : ', planned_substeps(sim, limit_value)
+            call log_info(trim(line))
+        end if
     contains
         real(wp) function particle_bytes(p)
             type(particles_t), intent(in) :: p

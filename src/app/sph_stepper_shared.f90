@@ -16,7 +16,7 @@ submodule (sph_stepper) sph_stepper_shared
     use sph_halo, only: halo_refresh
     use sph_rates, only: compute_summation_density, compute_strain_rate, compute_rates, &
         extrapolate_wall_density, local_motion_maxima
-    use sph_timestep, only: timestep_limits
+    use sph_timestep, only: timestep_limits, level_substeps
     use sph_reference, only: reference_from_config
     use sph_zones, only: zones_create
     use sph_step_timers, only: TIMER_RATES, TIMER_IDLE
@@ -220,6 +220,20 @@ contains
         end do
         sim%wall_forces = sum(sim%level_wall_forces, dim=4)
     end subroutine evaluate_level_rates
+
+    module procedure planned_substeps
+        real(wp) :: limit(0:sim%zones%n_levels - 1)
+        type(timestep_limits_t) :: lim
+        integer :: lv
+        do lv = 0, sim%zones%n_levels - 1
+            lim = timestep_limits(sim%level_phys(lv)%kernel%h, sim%phys%c, &
+                sim%last_limits%max_speed, sim%phys%nu, sim%last_limits%max_accel, &
+                sim%cfg%numerics%cfl, sim%cfg%numerics%viscous_safety, &
+                sim%cfg%numerics%force_safety)
+            limit(lv) = lim%dt
+        end do
+        k = level_substeps(dt, limit, sim%cfg%refinement%max_subcycles)
+    end procedure planned_substeps
 
     module procedure stable_timestep
         real(wp) :: maxima(2), h
