@@ -56,12 +56,15 @@ contains
     end subroutine domain_create
 
     !> Weighted ORB over the owned positions x(:, 1:n) of every rank (collective).
-    !> With no particles anywhere the box is split geometrically.
-    subroutine domain_partition(domain, env, x, n)
+    !> With no particles anywhere the box is split geometrically. weight(1:n), when present,
+    !> is each point's share of the work (positive; 1 each when absent): every cut then
+    !> splits the weight in proportion to the ranks on either side.
+    subroutine domain_partition(domain, env, x, n, weight)
         type(domain_t), intent(inout) :: domain
         type(mpi_env_t), intent(in) :: env
         real(wp), intent(in) :: x(:, :)
         integer, intent(in) :: n
+        real(wp), intent(in), optional :: weight(:)
         integer :: max_nodes, n_active, k, node, axis, it, i, nl, ierr, n_used
         integer, allocatable :: active(:), next_active(:), rank_lo(:), rank_hi(:), node_of(:)
         integer, allocatable :: tree_axis(:), tree_left(:), tree_right(:), tree_rank(:)
@@ -73,6 +76,9 @@ contains
         !> along that node's axis (the bisection's counting passes read these two only)
         integer, allocatable :: slot(:)
         real(wp), allocatable :: xa(:)
+        !> each point's weight, and half the smallest (the bisection's tolerance)
+        real(wp), allocatable :: w(:)
+        real(wp) :: half_unit
         integer(i8) :: total_count
 
         max_nodes = 2 * domain%nranks + 1
@@ -91,6 +97,10 @@ contains
         nlo(:, 1) = domain%lo; nhi(:, 1) = domain%hi
         node_of = 1
         total_count = global_sum(env, int(n, i8))
+        allocate(w(max(n, 1)))
+        w = 1.0_wp
+        if (present(weight) .and. n > 0) w(1:n) = weight(1:n)
+        half_unit = -global_max(env, -0.5_wp * minval(w(1:max(n, 1))))
         if (domain%nranks > 1) then
             active = [1]
         else
@@ -106,7 +116,7 @@ contains
             below_local = 0.0_wp
             do i = 1, n
                 k = slot(i)
-                if (k > 0) below_local(k) = below_local(k) + 1.0_wp
+                if (k > 0) below_local(k) = below_local(k) + w(i)
             end do
             call MPI_Allreduce(below_local, total, n_active, mpi_wp, MPI_SUM, env%comm, ierr)
             call check_mpi(ierr, 'domain_partition')
@@ -129,7 +139,7 @@ contains
                 do it = 1, bisection_steps
                     c = 0.5_wp * (a + b)
                     call weight_below(c, below)
-                    where (below >= target - 0.5_wp)
+                    where (below >= target - half_unit)
                         b = c
                     elsewhere
                         a = c
@@ -157,7 +167,7 @@ contains
                     if (glob_max(k) > -far .and. glob_min(k) < far) then
                         c(k) = 0.5_wp * (glob_max(k) + glob_min(k))
                     end if
-                    if (total(k) < 0.5_wp) c(k) = geometric_cut(k)
+                    if (total(k) < half_unit) c(k) = geometric_cut(k)
                 end do
             else
                 do k = 1, n_active
@@ -222,7 +232,7 @@ contains
             do j = 1, n
                 kk = slot(j)
                 if (kk == 0) cycle
-                if (xa(j) < cut(kk)) below_local(kk) = below_local(kk) + 1.0_wp
+                if (xa(j) < cut(kk)) below_local(kk) = below_local(kk) + w(j)
             end do
             call MPI_Allreduce(below_local, result_weight, size(cut), mpi_wp, MPI_SUM, env%comm, &
                 ierr)
@@ -318,13 +328,17 @@ contains
         end do
     end subroutine domain_wrap
 
-    !> max(owned) / mean(owned) over ranks (1 = perfect balance).
-    real(wp) function domain_imbalance(env, n_owned)
+    !> max(owned) / mean(owned) over ranks (1 = perfect balance); with load, that rank's
+    !> summed particle weights (domain_partition) instead of its count.
+    real(wp) function domain_imbalance(env, n_owned, load)
         type(mpi_env_t), intent(in) :: env
         integer, intent(in) :: n_owned
-        real(wp) :: total, biggest
-        total = global_sum(env, real(n_owned, wp))
-        biggest = global_max(env, real(n_owned, wp))
+        real(wp), intent(in), optional :: load
+        real(wp) :: total, biggest, mine
+        mine = real(n_owned, wp)
+        if (present(load)) mine = load
+        total = global_sum(env, mine)
+        biggest = global_max(env, mine)
         if (total > 0.0_wp) then
             domain_imbalance = biggest / (total / env%nranks)
         else
