@@ -180,21 +180,24 @@ def plot_multires(studies, path):
                           ls='-' if np == 1 else '--', label='uniform fine, %d rank(s)' % np)
                 left.plot(n, [r[name]['multi'] for r in rows], marker='s',
                           ls='-' if np == 1 else '--', label='multi-resolution, %d rank(s)' % np)
-    left.set_xscale('log')
-    left.set_yscale('log')
-    left.set_xlabel('particles of the uniformly fine run')
-    left.set_ylabel('wall s per simulated s (Verlet)')
-    left.legend(fontsize=8)
-    left.grid(True, which='both', alpha=0.3)
+    log_axes(left, 'particles of the uniformly fine run', 'wall s per simulated s (Verlet)')
     right.axhline(0.5, color='k', ls=':', lw=0.8)
     right.text(2.2e3, 0.52, 'target 0.5', fontsize=8)
-    right.set_xscale('log')
-    right.set_xlabel('particles of the uniformly fine run')
-    right.set_ylabel('multi-resolution / uniform wall time')
-    right.legend(fontsize=8)
-    right.grid(True, which='both', alpha=0.3)
+    log_axes(right, 'particles of the uniformly fine run',
+             'multi-resolution / uniform wall time', log_y=False)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
+
+
+def log_axes(ax, xlabel, ylabel, log_y=True):
+    """Logarithmic particle axis (and y axis), labels, legend and grid."""
+    ax.set_xscale('log')
+    if log_y:
+        ax.set_yscale('log')
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.legend(fontsize=8)
+    ax.grid(True, which='both', alpha=0.3)
 
 
 def plot(rows, path):
@@ -219,12 +222,7 @@ def plot(rows, path):
     left.text(1.1e4, 180, 'target 2D: 175 ns', fontsize=8)
     left.axhline(700, color='k', ls=':', lw=0.8)
     left.text(1.1e4, 720, 'target 3D: 700 ns', fontsize=8)
-    left.set_xscale('log')
-    left.set_yscale('log')
-    left.set_xlabel('particles')
-    left.set_ylabel('ns per particle-step x ranks (median, range)')
-    left.legend(fontsize=8)
-    left.grid(True, which='both', alpha=0.3)
+    log_axes(left, 'particles', 'ns per particle-step x ranks (median, range)')
     names = ['%s %s np%d' % (r['case'].replace('poiseuille', ''),
                              'pc' if r['integrator'] == 'predictor_corrector' else 'vv',
                              r['ranks']) for r in rows]
