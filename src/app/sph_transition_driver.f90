@@ -391,8 +391,8 @@ contains
     !> step has just ended); all when absent. step_state: the refreshed values also become
     !> the state the Verlet kick starts from (v_old, rho_old, e_old), so that a virtual
     !> particle's fields do not carry on an integration of their own from one refresh to the
-    !> next (its velocity would gather the body force its cut support leaves unbalanced, and
-    !> its motion with it).
+    !> next, by SPH equations whose support is cut at the zone's edge (the channels' error
+    !> then moved; multiresolution.md, "Time steps").
     subroutine refresh_virtual_fields(zones, level_phys, p, stats, plan, margin, levels, &
             step_state)
         type(zones_t), intent(in) :: zones
