@@ -347,8 +347,8 @@ contains
     end function domain_imbalance
 
     !> Send every owned particle that left this rank's subdomain to its owner (periodic faces
-    !> included: positions are wrapped first), with every field. Ghosts are dropped. The
-    !> global count is checked.
+    !> included: positions are wrapped first, x_old by the same shift), with every field.
+    !> Ghosts are dropped. The global count is checked.
     subroutine migrate_particles(domain, env, p)
         type(domain_t), intent(in) :: domain
         type(mpi_env_t), intent(in) :: env
@@ -359,6 +359,7 @@ contains
         integer(i8), allocatable :: send_ibuf(:, :), recv_ibuf(:, :)
         integer :: i, r, kept, n_send, n_recv, ierr, counts(4), n_real, n_int
         integer(i8) :: before, after
+        real(wp) :: shift(3)
         character(len=:), allocatable :: culprits
         character(len=64) :: item
 
@@ -369,7 +370,11 @@ contains
         allocate(send_disp(0:env%nranks - 1), recv_disp(0:env%nranks - 1), fill(0:env%nranks - 1))
         send_count = 0
         do i = 1, p%n_owned
+            ! x_old moves with x: a level in the middle of a sub-cycled step drifts from it
+            shift = p%x(:, i)
             call domain_wrap(domain, p%x(:, i))
+            shift = p%x(:, i) - shift
+            if (any(shift /= 0.0_wp)) p%x_old(:, i) = p%x_old(:, i) + shift
             dest(i) = domain_owner(domain, p%x(:, i))
             if (dest(i) /= env%rank) send_count(dest(i)) = send_count(dest(i)) + 1
         end do
