@@ -481,6 +481,9 @@ contains
             integer, intent(in) :: jj
             force_slot = 0
             if (.not. present(wall_forces)) return
+            ! a virtual particle stands in for fluid that the other level's real particles
+            ! carry, and they push on the solid already
+            if (p%kind(i) /= KIND_FLUID) return
             force_slot = p%solid(jj)
         end function force_slot
 
