@@ -43,6 +43,7 @@ module sph_transition_driver
     use sph_cell_list, only: neighbour_list_t
     use sph_kernel, only: kernel_t
     use sph_transition, only: fine_virtual_positions, coarse_virtual_positions, &
+        fine_virtual_split, coarse_virtual_parity, &
         interpolate_fields, virtual_id, image_source_id
     implicit none
     private
@@ -104,7 +105,36 @@ module sph_transition_driver
         integer, allocatable :: parity(:)
     end type new_set_t
 
+    !> Every position one level's virtual particles could be made at in one update (its
+    !> slots), before the zone keeps some: their ids, positions and the ids' ascending order.
+    type :: slot_set_t
+        integer(i8), allocatable :: id(:)
+        real(wp), allocatable :: x(:, :)
+        integer, allocatable :: order(:)
+    end type slot_set_t
+
 contains
+
+    !> Index of `value` in ids (order: the ids ascending), 0 when it is not there.
+    pure integer function find_id(ids, order, value) result(k)
+        integer(i8), intent(in) :: ids(:), value
+        integer, intent(in) :: order(:)
+        integer :: lo, hi, mid
+        k = 0
+        lo = 1
+        hi = size(order)
+        do while (lo <= hi)
+            mid = (lo + hi) / 2
+            if (ids(order(mid)) == value) then
+                k = order(mid)
+                return
+            else if (ids(order(mid)) < value) then
+                lo = mid + 1
+            else
+                hi = mid - 1
+            end if
+        end do
+    end function find_id
 
     !> Set-up of a multi-resolution run: for every level, the lattice of its spacing
     !> (sph_initial) keeps its fluid sites in the level's region (real) and transition zone
@@ -176,13 +206,25 @@ contains
         integer(i8), allocatable :: keys(:, :), new_ids(:)
         integer(i8) :: base
         type(new_set_t), allocatable :: sets(:)
+        type(slot_set_t), allocatable :: slots(:)
         character(len=256) :: errmsg
 
         dim = p%dim
+        ! 1. the new virtual particles of every zone, from the particles as they are now, and
+        !    every slot they could have been made at, for the conversions
+        allocate(sets(2 * (zones%n_levels - 1)), slots(0:zones%n_levels - 1))
+        stat = 0
+        errmsg = ''
+        do lv = 1, zones%n_levels - 1
+            call make_virtuals(lv, lv - 1, sets(2 * lv - 1))   ! fine, from the coarse level
+            call make_virtuals(lv - 1, lv, sets(2 * lv))       ! coarse, from the fine level
+        end do
+        if (global_max(env, int(stat, i8)) /= 0) call fatal_collective('transition zones', &
+            'making virtual particles failed: ' // trim(errmsg))
+        ! 2. conversions (owned particles; old virtuals are dropped after serving as sources)
         allocate(drop(p%n_owned), converted(p%n_owned))
         drop = .false.
         n_conv = 0
-        ! 1. conversions (owned particles; old virtuals are dropped after serving as sources)
         do i = 1, p%n_owned
             select case (p%kind(i))
             case (KIND_FLUID)
@@ -192,7 +234,7 @@ contains
                     stats%mass_out(p%level(i)) = stats%mass_out(p%level(i)) + p%m(i)
                 end if
             case (KIND_VIRTUAL)
-                if (zones%level_at(p%x(:, i)) == p%level(i)) then
+                if (turns_real(i)) then
                     n_conv = n_conv + 1
                     converted(n_conv) = i
                     stats%became_real(p%level(i)) = stats%became_real(p%level(i)) + 1
@@ -202,16 +244,6 @@ contains
                 end if
             end select
         end do
-        ! 2. the new virtual particles of every zone, from the particles as they are now
-        allocate(sets(2 * (zones%n_levels - 1)))
-        stat = 0
-        errmsg = ''
-        do lv = 1, zones%n_levels - 1
-            call make_virtuals(lv, lv - 1, sets(2 * lv - 1))   ! fine, from the coarse level
-            call make_virtuals(lv - 1, lv, sets(2 * lv))       ! coarse, from the fine level
-        end do
-        if (global_max(env, int(stat, i8)) /= 0) call fatal_collective('transition zones', &
-            'making virtual particles failed: ' // trim(errmsg))
         ! 3. fresh ids for the virtuals that became real (rank-count independent keys)
         allocate(keys(2, max(n_conv, 1)), new_ids(max(n_conv, 1)))
         do k = 1, n_conv
@@ -237,6 +269,35 @@ contains
 
     contains
 
+        !> Whether virtual particle i turns real. Its slot, the position it would be made at
+        !> now (found by its id), decides where there is one. The particle has moved since it
+        !> was made with the velocity at its own position, its slot with its sources; in a
+        !> shear flow they part by a fraction of a spacing. Judged by the particle alone, one
+        !> behind its slot would miss its crossing (dropped, and its slot, now across, not
+        !> made again: a hole), one ahead would cross twice (turned real, and made again
+        !> behind: a clump). Measured on input/multires_cost.nml to 3 s: fine rows 2-3
+        !> spacings short at the inflow and densities 995-1004 kg/m^3, against none and
+        !> 1000.0-1001.6 with the slot deciding. A particle that turns real behind its slot
+        !> moves to it, as every virtual particle that stays virtual does. Without a slot
+        !> (its sources have left the zone) its own position decides.
+        logical function turns_real(i)
+            integer, intent(in) :: i
+            integer :: lv_i, k
+            real(wp) :: shift(3)
+            lv_i = p%level(i)
+            k = find_id(slots(lv_i)%id, slots(lv_i)%order, p%id(i))
+            if (k == 0) then
+                turns_real = zones%level_at(p%x(:, i)) == lv_i
+                return
+            end if
+            turns_real = zones%level_at(slots(lv_i)%x(:, k)) == lv_i
+            if (turns_real .and. zones%level_at(p%x(:, i)) /= lv_i) then
+                shift = slots(lv_i)%x(:, k) - p%x(:, i)
+                p%x(:, i) = p%x(:, i) + shift
+                p%x_old(:, i) = p%x_old(:, i) + shift
+            end if
+        end function turns_real
+
         !> Virtual particles of level `target` made from the particles of level `source` (an
         !> adjacent level), kept where target's zone is and this rank owns the position.
         subroutine make_virtuals(target, source, set)
@@ -247,17 +308,20 @@ contains
             logical, allocatable :: take(:)
             real(wp), allocatable :: xs(:, :), xn(:, :), fs(:, :)
             integer(i8), allocatable :: ids(:), vid(:)
-            integer, allocatable :: par(:), new_parity(:)
+            integer, allocatable :: par(:), new_parity(:), parent(:)
+            real(wp), allocatable :: parent_mass(:)
             real(wp) :: reach, dx_source, y(3), factor
             character(len=256) :: msg
             dx_source = level_phys(source)%dx
             reach = zones%width + SOURCE_MARGIN * dx_source
             allocate(take(p%n_owned + p%n_ghost))
             do j = 1, p%n_owned + p%n_ghost
-                ! refining also builds on the source level's wall particles, so the cells
-                ! between the first fluid row and the wall give the fine row next to the wall
+                ! the remeshing rule's refinement also builds on the source level's wall
+                ! particles, so the cells between the first fluid row and the wall give the
+                ! fine row next to the wall (the split rule gives it from the fluid row)
                 take(j) = p%level(j) == source .and. (moves_with_flow(p%kind(j)) .or. &
-                    (target > source .and. p%kind(j) == KIND_WALL))
+                    (target > source .and. p%kind(j) == KIND_WALL .and. &
+                    .not. zones%split_virtuals))
                 if (take(j)) take(j) = zones%distance_to_level(p%x(:, j), target) < reach
             end do
             src = pack([(j, j = 1, p%n_owned + p%n_ghost)], take)
@@ -285,11 +349,17 @@ contains
             end do
             st = 0
             msg = ''
-            if (target > source) then
+            par = p%parity(src)
+            if (zones%split_virtuals .and. target > source) then
+                call fine_virtual_split(dim, target, n_src, xs, ids, dx_source, n_new, xn, &
+                    vid, new_parity, parent)
+            else if (zones%split_virtuals) then
+                call coarse_virtual_parity(dim, target, n_src, xs, ids, par, dx_source, &
+                    box_lo, n_new, xn, vid, new_parity, parent)
+            else if (target > source) then
                 call fine_virtual_positions(dim, target, n_src, xs, ids, dx_source, n_new, xn, &
                     vid, new_parity, st, msg)
             else
-                par = p%parity(src)
                 call coarse_virtual_positions(dim, target, n_src, xs, ids, par, dx_source, &
                     box_lo, n_new, xn, vid, new_parity, st, msg)
             end if
@@ -298,6 +368,10 @@ contains
                 errmsg = msg
                 n_new = 0
             end if
+            slots(target)%id = vid(1:n_new)
+            slots(target)%x = xn(:, 1:n_new)
+            allocate(slots(target)%order(n_new))
+            call id_order(slots(target)%id, n_new, slots(target)%order)
             deallocate(take)
             allocate(take(max(n_new, 0)))
             do j = 1, n_new
@@ -315,6 +389,9 @@ contains
             set%x(:, 1:set%n) = xn(:, keep_new)
             set%id(1:set%n) = vid(keep_new)
             set%parity = new_parity(keep_new)
+            ! the split rule's masses: exactly the parent's share (2^-dim of a coarse
+            ! particle, 2^dim fine ones), so the mass that turns real is what left
+            if (zones%split_virtuals) parent_mass = p%m(src(parent(keep_new)))
             ! fields from the source level's fluid: velocity, density, energy, mass
             src = pack(src, moves_with_flow(p%kind(src)))
             n_src = size(src)
@@ -331,14 +408,16 @@ contains
             stats%clipped = stats%clipped + n_clip
             factor = 2.0_wp**(dim * (source - target))
             set%f(6, 1:set%n) = set%f(6, 1:set%n) * factor
+            if (zones%split_virtuals) set%f(6, 1:set%n) = parent_mass * factor
             stats%fallbacks = stats%fallbacks + n_fb
             stats%empty = stats%empty + n_empty
             if (n_empty > 0) then
                 ! no source in reach: a hole in the source level (cannot happen while the zone
-                ! is as wide as the support); keep the particle out rather than give it no mass
+                ! is as wide as the support); keep the particle out rather than give it no
+                ! density (the interpolation leaves zeros there)
                 a = 0
                 do j = 1, set%n
-                    if (set%f(6, j) > 0.0_wp) then
+                    if (set%f(4, j) > 0.0_wp) then
                         a = a + 1
                         set%x(:, a) = set%x(:, j)
                         set%id(a) = set%id(j)
@@ -527,7 +606,10 @@ contains
     !> zone (distance to the region + support <= zone width) get it: further out the sum is cut
     !> by the zone's edge and would make them heavy next to the real particles (measured on
     !> the channels: +31 % at the edge of the coarse zone, and the error of the fine band up by a
-    !> quarter). The others keep the masses scaled from their sources. Needs the neighbour list
+    !> quarter). The others keep the masses scaled from their sources. Only for the remeshing
+    !> rule (&refinement virtual_rule = 'remesh'): the split rule's virtuals carry exact
+    !> shares of their parents' masses, and a volume from the arrangement would make the mass
+    !> that turns real differ from the mass that left. Needs the neighbour list
     !> of the level-paired particles with current ghosts; no MPI (the caller refreshes the
     !> ghosts' masses).
     subroutine set_virtual_masses(zones, level_phys, p, nl)
@@ -538,6 +620,8 @@ contains
         integer :: i, k, j, lv
         real(wp) :: d(3), r, sum_w
         real(wp), allocatable :: lattice_sum(:)
+        ! the split rule's virtual particles carry their parents' exact shares
+        if (zones%split_virtuals) return
         allocate(lattice_sum(0:size(level_phys) - 1))
         do lv = 0, size(level_phys) - 1
             lattice_sum(lv) = kernel_lattice_sum(level_phys(lv)%kernel, level_phys(lv)%dx, p%dim)

@@ -1,5 +1,6 @@
 !> Spatially varying resolution as read from input (thesis sec. 3.3): &refinement (one group:
-!> the transition zone width, whether snapshots hold virtual particles) and &region (repeated,
+!> the transition zone width, whether snapshots hold virtual particles, sub-cycling, how
+!> virtual particles are made) and &region (repeated,
 !> one per refinement region, numbered in file order): an axis-aligned box or slab, or the
 !> band within a distance of a &body's surface, whose particles have spacing dx / 2**level.
 !> Read by sph_config; turned into geometry by sph_zones.
@@ -35,6 +36,10 @@ module sph_refinement_input
         !> a level's step may span up to this many steps of the finest level (a power of 2;
         !> 1 = every level takes the finest level's step)
         integer :: max_subcycles = 1
+        !> how virtual particles are made from the other level: 'split' (2^dim children at
+        !> +- dx/4 per coarse particle; coarse ones from the fine particles of lattice parity
+        !> 0) or 'remesh' (sph_refine's construction and sph_coarsen's selection)
+        character(len=8) :: virtual_rule = 'split'
         real(wp) :: width = 0.0_wp              !< m, resolved (set by check_refinement)
     end type refinement_input_t
 
@@ -59,6 +64,11 @@ contains
         call grp%get_int('max_subcycles', ref%max_subcycles, 1, min=1, max=MAX_SUBCYCLES, &
             doc='a coarser level steps once per up to this many steps of the finest level, ' // &
             'as its own time-step limits allow (a power of 2; 1 = one shared time step)')
+        call grp%get_string('virtual_rule', ref%virtual_rule, 'split', &
+            choices=[character(len=8) :: 'split', 'remesh'], &
+            doc='how virtual particles are made from the other level: split (each coarse ' // &
+            'particle into 2^dim at +-dx/4 per axis, the fine ones of lattice parity 0 ' // &
+            'into coarse ones; exact counts and masses) or remesh (the remeshing rules)')
         if (iand(ref%max_subcycles, ref%max_subcycles - 1) /= 0) call grp%error( &
             'max_subcycles', int_text(int(ref%max_subcycles, i8)) // ' is not a power of 2: ' // &
             'use 1, 2, 4, 8, ... up to ' // int_text(int(MAX_SUBCYCLES, i8)))

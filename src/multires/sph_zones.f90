@@ -45,6 +45,9 @@ module sph_zones
         integer :: dim = 2
         integer :: n_levels = 1      !< 1 + highest region level; 1 = uniform resolution
         real(wp) :: width = 0.0_wp   !< resolved transition zone width (m)
+        !> virtual particles by the split rule (&refinement virtual_rule = 'split') or by
+        !> the remeshing rules ('remesh'); see sph_transition
+        logical :: split_virtuals = .true.
         real(wp) :: period(3) = 0.0_wp   !< box length along periodic axes, 0 otherwise
         type(zone_region_t), allocatable :: regions(:)
     contains
@@ -67,6 +70,7 @@ contains
         if (allocated(cfg%regions)) n = size(cfg%regions)
         z%dim = cfg%domain%dimension
         z%width = cfg%refinement%width
+        z%split_virtuals = trim(cfg%refinement%virtual_rule) /= 'remesh'
         z%period = 0.0_wp
         do a = 1, z%dim
             if (cfg%domain%is_periodic(a)) z%period(a) = cfg%domain%box_hi(a) - &
