@@ -141,6 +141,8 @@ contains
             sim%cfg%run%t_end - sim%time) / limit_value, i8), ' steps to t_end = ', &
             sim%cfg%run%t_end, ' s at that step'
         call log_info(trim(line))
+        if (multires(sim)) call log_info('check: virtual particles by the ' // &
+            trim(sim%cfg%refinement%virtual_rule) // ' rule (&refinement virtual_rule)')
         if (sim%subcycling) then
             sim%last_limits = lim
             write(line, '(a,*(i0,:,", "))') 'check: sub-cycling, steps of the finest level ' // &
