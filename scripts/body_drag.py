@@ -130,6 +130,19 @@ def mean_speed(output_dir, case, t_from, axis):
     return float(np.mean(speeds)) if speeds else float('nan')
 
 
+def time_averaged(rows, last, key, out):
+    """The mean over the rows `last` (the tail of `rows`) of their step means `key`, each
+    weighted by the time since the previous row (a row's mean covers that time)."""
+    if key not in rows[0] or rows[0][key] is None:
+        raise SystemExit(f'body_drag: {out} has no {key} column (written since e70ece3)')
+    times = [float(r['time']) for r in rows]
+    first = len(rows) - len(last)
+    weights = [times[k] - times[k - 1] if k > 0 else 0.0 for k in range(first, len(rows))]
+    if sum(weights) <= 0.0:
+        raise SystemExit(f'body_drag: {out}: the rows averaged cover no time')
+    return float(np.average([float(r[key]) for r in last], weights=weights))
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('output_dirs', nargs='+')
@@ -137,6 +150,10 @@ def main():
     ap.add_argument('--body', default='cylinder')
     ap.add_argument('--fraction', type=float, default=0.5,
                     help='average the rows of the last fraction of the run time')
+    ap.add_argument('--time-averaged', action='store_true',
+                    help="average the rows' step means (Fx_mean, ...: the force averaged over "
+                         "the steps since the previous row), weighted by the time each covers, "
+                         "instead of the instantaneous forces of the rows")
     ap.add_argument('--max-imbalance', type=float, default=None, help='percent')
     ap.add_argument('--require-convergence', action='store_true')
     ap.add_argument('--max-reference-deviation', type=float, default=None,
@@ -167,7 +184,10 @@ def main():
         t_end = float(rows[-1]['time'])
         last = [r for r in rows if float(r['time']) >= (1.0 - args.fraction) * t_end]
         key = 'F' + 'xyz'[axis]
-        drag = float(np.mean([float(r[key]) for r in last]))
+        if args.time_averaged:
+            drag = time_averaged(rows, last, key + '_mean', out)
+        else:
+            drag = float(np.mean([float(r[key]) for r in last]))
         expected = rho0 * force[axis] * fluid
         imbalance = 100.0 * (drag - expected) / expected
         drags.append(drag)

@@ -250,7 +250,7 @@ contains
     !> since the last line and the estimated remaining wall time (collective).
     subroutine log_progress(sched, sim, env)
         type(schedule_t), intent(inout) :: sched
-        type(simulation_t), intent(in) :: sim
+        type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
         real(wp) :: wall_now, rho(2), per_step, remaining
         character(len=256) :: line

@@ -80,6 +80,10 @@ module sph_stepper
         !> force of the fluid on each solid from the last rates: (xyz, pressure|viscous, solid),
         !> this rank's fluid particles only (simulation_solid_forces sums over ranks)
         real(wp), allocatable :: wall_forces(:, :, :)
+        !> wall_forces integrated over the steps since the forces were last written, and the
+        !> time that covers (this rank's part; simulation_write_forces writes their mean)
+        real(wp), allocatable :: force_integral(:, :, :)
+        real(wp) :: force_window = 0.0_wp
         character(len=:), allocatable :: input_text
         character(len=:), allocatable :: snapshot_index   !< one line per snapshot, for XDMF
         character(len=512), allocatable :: checkpoints(:) !< written by this run, oldest first
@@ -234,10 +238,12 @@ module sph_stepper
         end function simulation_solid_forces
 
         !> The forces on the solids as rows of <output_dir>/<case>_forces.csv: time, step, body,
-        !> Fx, Fy, Fz, then the pressure and viscous parts (N, per unit depth in 2D). Collective;
-        !> rank 0 writes. `fresh` starts the file (a new run); otherwise rows are appended.
+        !> Fx, Fy, Fz, then the pressure and viscous parts (N, per unit depth in 2D), then the
+        !> total force's mean over the steps since the previous row (Fx_mean, ...; the
+        !> instantaneous force at a run's or a restart's first row). Collective; rank 0
+        !> writes. `fresh` starts the file (a new run); otherwise rows are appended.
         module subroutine simulation_write_forces(sim, env, fresh)
-            type(simulation_t), intent(in) :: sim
+            type(simulation_t), intent(inout) :: sim
             type(mpi_env_t), intent(in) :: env
             logical, intent(in) :: fresh
         end subroutine simulation_write_forces
@@ -547,13 +553,18 @@ contains
         type(mpi_env_t), intent(in) :: env
         real(wp), intent(in), optional :: dt_cap
         integer :: previous
+        real(wp) :: start
         ! what no other part claims (time-step limits, reductions, health) is integration
         call timers_enter(sim%timers, TIMER_INTEGRATION, previous)
+        start = sim%time
         if (sim%verlet) then
             call verlet_step(sim, env, dt_cap)
         else
             call predictor_corrector_step(sim, env, dt_cap)
         end if
+        ! the forces on the solids from the step's last rates, over the time it took
+        sim%force_integral = sim%force_integral + (sim%time - start) * sim%wall_forces
+        sim%force_window = sim%force_window + (sim%time - start)
         call timers_leave(sim%timers, previous)
     end subroutine simulation_step
 

@@ -41,13 +41,24 @@ contains
     end procedure simulation_solid_forces
 
     module procedure simulation_write_forces
-        real(wp), allocatable :: forces(:, :, :)
+        real(wp), allocatable :: forces(:, :, :), mean(:, :, :)
+        real(wp) :: window
         character(len=:), allocatable :: path
         character(len=512) :: line
         integer :: unit, k, stat
         logical :: exists
         if (size(sim%solids%list) == 0) return
         forces = simulation_solid_forces(sim, env)
+        ! the mean since the last row: the pressure part of the force is noisy from step to
+        ! step (the cylinder's drag samples scatter by 2-11 %), its mean over the steps is
+        ! what a drag balance needs; at the first row (and after a restart) it is the
+        ! instantaneous force
+        window = sim%force_window
+        mean = forces
+        if (window > 0.0_wp) mean = reshape(global_sum(env, reshape(sim%force_integral, &
+            [size(sim%force_integral)])), shape(sim%force_integral)) / window
+        sim%force_integral = 0.0_wp
+        sim%force_window = 0.0_wp
         path = trim(sim%cfg%output%output_dir) // '/' // trim(sim%cfg%run%case_name) // &
             '_forces.csv'
         stat = 0
@@ -60,16 +71,17 @@ contains
             else if (fresh .or. .not. exists) then
                 open(newunit=unit, file=path, status='replace', action='write', iostat=stat)
                 if (stat == 0) write(unit, '(a)') 'time,step,body,Fx,Fy,Fz,Fx_pressure,' // &
-                    'Fy_pressure,Fz_pressure,Fx_viscous,Fy_viscous,Fz_viscous'
+                    'Fy_pressure,Fz_pressure,Fx_viscous,Fy_viscous,Fz_viscous,' // &
+                    'Fx_mean,Fy_mean,Fz_mean'
             else
                 open(newunit=unit, file=path, status='old', position='append', &
                     action='write', iostat=stat)
             end if
             if (stat == 0) then
                 do k = 1, size(forces, 3)
-                    write(line, '(es24.16,",",i0,",",a,9(",",es24.16))') sim%time, sim%step, &
+                    write(line, '(es24.16,",",i0,",",a,12(",",es24.16))') sim%time, sim%step, &
                         trim(sim%solids%list(k)%name), forces(:, 1, k) + forces(:, 2, k), &
-                        forces(:, 1, k), forces(:, 2, k)
+                        forces(:, 1, k), forces(:, 2, k), mean(:, 1, k) + mean(:, 2, k)
                     write(unit, '(a)') trim(line)
                 end do
                 close(unit)

@@ -50,6 +50,8 @@ contains
         call setup_level_physics(sim)
         allocate(sim%wall_forces(3, 2, size(sim%solids%list)))
         sim%wall_forces = 0.0_wp
+        allocate(sim%force_integral(3, 2, size(sim%solids%list)), source=0.0_wp)
+        sim%force_window = 0.0_wp
         ! multi-resolution Verlet steps level by level (max_subcycles = 1: all alike)
         sim%subcycling = multires(sim) .and. trim(cfg%numerics%integrator) == 'verlet'
         allocate(sim%level_substeps(0:sim%zones%n_levels - 1), &

@@ -418,3 +418,25 @@ class Test3DCouette(TestSnapshot, TestErrorTable, TestPlots, TestXdmf):
 
 if __name__ == "__main__":
     unittest.main()
+
+
+class TestBodyDragTimeAverage(unittest.TestCase):
+    """body_drag.time_averaged: the rows' step means weighted by the time each covers."""
+
+    def test_weights_by_interval(self):
+        import body_drag
+        rows = [{"time": "0.0", "Fx_mean": "5.0"}, {"time": "1.0", "Fx_mean": "1.0"},
+                {"time": "4.0", "Fx_mean": "2.0"}, {"time": "5.0", "Fx_mean": "6.0"}]
+        # the last three rows cover 1, 3 and 1 s: (1 + 6 + 6) / 5
+        self.assertAlmostEqual(body_drag.time_averaged(rows, rows[1:], "Fx_mean", "run"),
+                               13.0 / 5.0)
+        # a run's first row covers no time: alone it is refused
+        with self.assertRaises(SystemExit):
+            body_drag.time_averaged(rows[:1], rows[:1], "Fx_mean", "run")
+
+    def test_missing_column_refused(self):
+        import body_drag
+        rows = [{"time": "0.0", "Fx": "1.0"}, {"time": "1.0", "Fx": "1.0"}]
+        with self.assertRaises(SystemExit) as caught:
+            body_drag.time_averaged(rows, rows, "Fx_mean", "run")
+        self.assertIn("no Fx_mean column", str(caught.exception))
