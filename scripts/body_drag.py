@@ -134,7 +134,7 @@ def time_averaged(rows, last, key, out):
     """The mean over the rows `last` (the tail of `rows`) of their step means `key`, each
     weighted by the time since the previous row (a row's mean covers that time)."""
     if key not in rows[0] or rows[0][key] is None:
-        raise SystemExit(f'body_drag: {out} has no {key} column (written since e70ece3)')
+        raise SystemExit(f'body_drag: {out} has no {key} column (written since 618240b)')
     times = [float(r['time']) for r in rows]
     first = len(rows) - len(last)
     weights = [times[k] - times[k - 1] if k > 0 else 0.0 for k in range(first, len(rows))]

@@ -416,10 +416,6 @@ class Test3DCouette(TestSnapshot, TestErrorTable, TestPlots, TestXdmf):
         self.assertIn(f"{n_layer} particles", result.stdout)
 
 
-if __name__ == "__main__":
-    unittest.main()
-
-
 class TestBodyDragTimeAverage(unittest.TestCase):
     """body_drag.time_averaged: the rows' step means weighted by the time each covers."""
 
@@ -440,3 +436,7 @@ class TestBodyDragTimeAverage(unittest.TestCase):
         with self.assertRaises(SystemExit) as caught:
             body_drag.time_averaged(rows, rows, "Fx_mean", "run")
         self.assertIn("no Fx_mean column", str(caught.exception))
+
+
+if __name__ == "__main__":
+    unittest.main()
