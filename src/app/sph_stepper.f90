@@ -44,7 +44,8 @@ module sph_stepper
         TIMER_HALO, TIMER_INTEGRATION, TIMER_OTHER
     use sph_transition_driver, only: level_stats_t, create_level_particles, &
         update_transition_zones_of => update_transition_zones, level_totals, &
-        refresh_virtual_fields, refine_uniform_state, set_virtual_masses, refresh_plan_t
+        refresh_virtual_fields, refine_uniform_state, set_virtual_masses, refresh_plan_t, &
+        add_lineage_field
     implicit none
     private
     public :: simulation_solid_forces, simulation_write_forces, simulation_log_forces

@@ -75,6 +75,7 @@ contains
         call domain_create(sim%domain, env, cfg%domain%dimension, cfg%domain%box_lo, &
             cfg%domain%box_hi, periodic)
         call particles_init(sim%p, 1024, cfg%domain%dimension)
+        if (multires(sim) .and. sim%zones%split_virtuals) call add_lineage_field(sim%p)
         ! ghosts reach the support plus a skin that covers any motion within one step, plus
         ! the neighbour-list skin that particles may use up over the steps between rebuilds
         sim%skin = 2.0_wp * cfg%numerics%cfl * sim%phys%kernel%h

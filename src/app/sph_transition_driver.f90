@@ -32,8 +32,8 @@ module sph_transition_driver
     use sph_errors, only: fatal_collective
     use sph_config, only: config_t
     use sph_particles, only: particles_t, particles_init, particles_free, particles_reserve, &
-        particles_gather, particles_clear, particles_append, KIND_FLUID, KIND_WALL, &
-        KIND_VIRTUAL, moves_with_flow
+        particles_gather, particles_clear, particles_append, particles_add_field, KIND_FLUID, &
+        KIND_WALL, KIND_VIRTUAL, moves_with_flow, FIELD_CHECKPOINT, FIELD_OPTIONAL, HALO_GHOST
     use sph_physics, only: physics_t
     use sph_solids, only: solids_t, deepest_solid
     use sph_domain, only: domain_t, domain_owner
@@ -49,12 +49,27 @@ module sph_transition_driver
     private
     public :: level_stats_t, create_level_particles, update_transition_zones, level_totals
     public :: refresh_virtual_fields, refine_uniform_state, set_virtual_masses
-    public :: refresh_plan_t
+    public :: refresh_plan_t, add_lineage_field
 
     !> Source particles are taken within the zone width plus SOURCE_MARGIN source spacings:
     !> enough for the refinement's cells (<= 1.8 dx), the coarsening's rows and tagging chains
     !> (<= 4.3 fine spacings) and the interpolation's reach (2 sqrt(dim) h).
     real(wp), parameter :: SOURCE_MARGIN = 4.0_wp
+
+    !> Lineage (split rule). Each particle carries, in the run-time field LINEAGE_FIELD,
+    !> (1) the identity its fine children descend from, 0 for its own id, and (2) the identity
+    !> of the coarse particle it is a child of, 0 when unknown (set-up: the coarse lattice
+    !> site it lies in). A coarse virtual particle made from a fine particle of parity 0 takes
+    !> that particle's parent as its identity, so it names the same children as the coarse
+    !> particle it stands in for. A fine virtual particle that would copy a real one (the same
+    !> parent and corner, within COPY_DISTANCE fine spacings) is not made and does not turn
+    !> real. Without that, a coarse particle's children and the children of the coarse
+    !> virtual made from its first converted child both turned real, one on top of the other:
+    !> on input/cylinder_multires.nml 51 of the ring's 529 fine particles sat within 0.01
+    !> spacings of another by 6000 s, and the run broke down (doc/multiresolution.md).
+    !> Identities are real global ids; they stay far below 2^53, so real(wp) holds them.
+    character(len=*), parameter :: LINEAGE_FIELD = 'lineage'
+    real(wp), parameter :: COPY_DISTANCE = 0.5_wp
 
     !> What the transition updates did since the counters were last reset (this rank).
     type :: level_stats_t
@@ -103,6 +118,7 @@ module sph_transition_driver
         real(wp), allocatable :: f(:, :)   !< velocity (3), density, energy, mass
         integer(i8), allocatable :: id(:)
         integer, allocatable :: parity(:)
+        real(wp), allocatable :: lineage(:, :)   !< (2, n), when the particles carry it
     end type new_set_t
 
     !> Every position one level's virtual particles could be made at in one update (its
@@ -111,6 +127,7 @@ module sph_transition_driver
         integer(i8), allocatable :: id(:)
         real(wp), allocatable :: x(:, :)
         integer, allocatable :: order(:)
+        logical, allocatable :: copy(:)   !< a copy of a real particle (lineage): never real
     end type slot_set_t
 
 contains
@@ -136,6 +153,42 @@ contains
         end do
     end function find_id
 
+    !> Give p the lineage field (multi-resolution runs with the split rule), before any
+    !> particle is made or read: a restart then reads it from the checkpoint (older ones lack
+    !> it: no lineage known, as for the remeshing rule).
+    subroutine add_lineage_field(p)
+        type(particles_t), intent(inout) :: p
+        integer :: k
+        k = particles_add_field(p, LINEAGE_FIELD, 2, FIELD_CHECKPOINT + FIELD_OPTIONAL + &
+            HALO_GHOST)
+    end subroutine add_lineage_field
+
+    !> Index of the lineage field in p%extra, 0 when p carries none.
+    pure integer function lineage_index(p) result(k)
+        type(particles_t), intent(in) :: p
+        if (allocated(p%extra)) then
+            do k = 1, size(p%extra)
+                if (trim(p%extra(k)%info%name) == LINEAGE_FIELD) return
+            end do
+        end if
+        k = 0
+    end function lineage_index
+
+    !> A global id as the lineage field holds it: real ids (positive, below 2^53) exactly,
+    !> others (virtual ids: hashes) as 0, unknown.
+    pure real(wp) function lineage_value(id)
+        integer(i8), intent(in) :: id
+        lineage_value = 0.0_wp
+        if (id > 0_i8 .and. id < shiftl(1_i8, 53)) lineage_value = real(id, wp)
+    end function lineage_value
+
+    !> The key copies are found by: the parent's identity and the corner (below 2^dim <= 8).
+    pure integer(i8) function lineage_key(parent, corner)
+        real(wp), intent(in) :: parent
+        integer, intent(in) :: corner
+        lineage_key = 8_i8 * nint(parent, i8) + corner
+    end function lineage_key
+
     !> Set-up of a multi-resolution run: for every level, the lattice of its spacing
     !> (sph_initial) keeps its fluid sites in the level's region (real) and transition zone
     !> (virtual), and its wall sites within reach of those. Real ids are unique over the
@@ -151,9 +204,18 @@ contains
         type(config_t) :: level_cfg
         type(particles_t) :: lattice
         type(level_sites_t) :: sites
-        integer :: lv, k
-        integer(i8) :: offset, level_max
+        integer :: lv, k, lin, n_sites(3, 0:MAX_LEVEL), axis
+        integer(i8) :: offset, level_max, previous_offset, linear
 
+        lin = lineage_index(p)
+        n_sites = 1
+        do lv = 0, zones%n_levels - 1
+            do axis = 1, cfg%domain%dimension
+                n_sites(axis, lv) = nint((cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis)) / &
+                    (cfg%domain%dx / 2.0_wp**lv))
+            end do
+        end do
+        previous_offset = 0
         p%n_owned = 0
         p%n_total = 0
         offset = 0
@@ -164,6 +226,10 @@ contains
             sites%level = lv
             sites%reach = zones%width + level_phys(lv)%kernel%support
             call particles_init(lattice, 1024, cfg%domain%dimension)
+            if (lin > 0) then
+                call add_lineage_field(lattice)
+                lin = lineage_index(lattice)
+            end if
             ! only the sites the level keeps: the whole lattice of a fine level would be the
             ! memory of the uniformly fine run
             call create_lattice_particles(level_cfg, level_phys(lv), solids, domain, lattice, &
@@ -172,17 +238,50 @@ contains
             ! the fluid outside the level's region lies in its transition zone: virtual
             do k = 1, lattice%n_owned
                 lattice%level(k) = lv
+                linear = lattice%id(k)
                 lattice%id(k) = lattice%id(k) + offset
                 if (lattice%kind(k) /= KIND_FLUID) cycle
-                if (zones%level_at(lattice%x(:, k)) == lv) cycle
+                ! lineage: a fluid site's parent is the coarser level's site it lies in (the
+                ! sites at +- dx/4 of a coarse site are its split children); a virtual one
+                ! keeps its site's id as its identity
+                if (lin > 0) lattice%extra(lin)%a(:, k) = [lineage_value(lattice%id(k)), &
+                    parent_site(linear, lv)]
+                if (zones%level_at(lattice%x(:, k)) == lv) then
+                    if (lin > 0) lattice%extra(lin)%a(1, k) = 0.0_wp
+                    cycle
+                end if
                 lattice%kind(k) = KIND_VIRTUAL
                 lattice%id(k) = virtual_id(lv, lattice%id(k), -1_i8)
             end do
+            previous_offset = offset
             offset = offset + level_max
             call particles_append(p, lattice, [(k, k = 1, lattice%n_owned)])
             call particles_free(lattice)
         end do
         p%n_ghost = 0
+
+    contains
+
+        !> The id of the level lv - 1 fluid site that holds level lv's fluid site `linear`
+        !> (sph_initial's numbering), 0 on level 0 or where the lattices do not nest.
+        real(wp) function parent_site(linear, lv) result(parent)
+            integer(i8), intent(in) :: linear
+            integer, intent(in) :: lv
+            integer(i8) :: q, idx(3), coarse
+            parent = 0.0_wp
+            if (lv == 0) return
+            if (any(n_sites(:, lv) /= merge(2 * n_sites(:, lv - 1), 1, &
+                [1, 2, 3] <= cfg%domain%dimension))) return
+            q = linear - 1
+            idx(1) = mod(q, int(n_sites(1, lv), i8))
+            q = q / n_sites(1, lv)
+            idx(2) = mod(q, int(n_sites(2, lv), i8))
+            idx(3) = q / n_sites(2, lv)
+            idx(1:cfg%domain%dimension) = idx(1:cfg%domain%dimension) / 2
+            coarse = 1 + idx(1) + n_sites(1, lv - 1) * (idx(2) + int(n_sites(2, lv - 1), i8) &
+                * idx(3))
+            parent = lineage_value(coarse + previous_offset)
+        end function parent_site
     end subroutine create_level_particles
 
     !> The transition zones after a step (see the module header; collective). On entry the
@@ -200,7 +299,7 @@ contains
         type(particles_t), intent(inout) :: p
         integer(i8), intent(inout) :: next_id
         type(level_stats_t), intent(inout) :: stats
-        integer :: dim, i, lv, n_conv, k, stat
+        integer :: dim, i, lv, n_conv, k, stat, lin
         logical, allocatable :: drop(:)
         integer, allocatable :: converted(:), keep(:)
         integer(i8), allocatable :: keys(:, :), new_ids(:)
@@ -210,6 +309,8 @@ contains
         character(len=256) :: errmsg
 
         dim = p%dim
+        lin = 0
+        if (zones%split_virtuals) lin = lineage_index(p)
         ! 1. the new virtual particles of every zone, from the particles as they are now, and
         !    every slot they could have been made at, for the conversions
         allocate(sets(2 * (zones%n_levels - 1)), slots(0:zones%n_levels - 1))
@@ -290,7 +391,8 @@ contains
                 turns_real = zones%level_at(p%x(:, i)) == lv_i
                 return
             end if
-            turns_real = zones%level_at(slots(lv_i)%x(:, k)) == lv_i
+            turns_real = zones%level_at(slots(lv_i)%x(:, k)) == lv_i .and. &
+                .not. slots(lv_i)%copy(k)
             if (turns_real .and. zones%level_at(p%x(:, i)) /= lv_i) then
                 shift = slots(lv_i)%x(:, k) - p%x(:, i)
                 p%x(:, i) = p%x(:, i) + shift
@@ -309,7 +411,7 @@ contains
             real(wp), allocatable :: xs(:, :), xn(:, :), fs(:, :)
             integer(i8), allocatable :: ids(:), vid(:)
             integer, allocatable :: par(:), new_parity(:), parent(:)
-            real(wp), allocatable :: parent_mass(:)
+            real(wp), allocatable :: parent_mass(:), lineage(:, :)
             real(wp) :: reach, dx_source, y(3), factor
             character(len=256) :: msg
             dx_source = level_phys(source)%dx
@@ -372,11 +474,30 @@ contains
             slots(target)%x = xn(:, 1:n_new)
             allocate(slots(target)%order(n_new))
             call id_order(slots(target)%id, n_new, slots(target)%order)
+            allocate(slots(target)%copy(n_new))
+            slots(target)%copy = .false.
+            if (lin > 0) then
+                ! children descend from their source's identity; a coarse virtual takes its
+                ! fine source's parent as its own identity
+                allocate(lineage(2, max(n_new, 1)))
+                do j = 1, n_new
+                    a = src(parent(j))
+                    if (target > source) then
+                        lineage(:, j) = [0.0_wp, identity(a)]
+                    else
+                        lineage(:, j) = [p%extra(lin)%a(2, a), 0.0_wp]
+                    end if
+                end do
+                if (target > source) call find_copies(target, n_new, xn, new_parity, &
+                    lineage, slots(target)%copy)
+            end if
             deallocate(take)
             allocate(take(max(n_new, 0)))
             do j = 1, n_new
                 y = xn(:, j)
-                take(j) = .not. any(y(1:dim) < box_lo(1:dim) .or. y(1:dim) >= box_hi(1:dim))
+                take(j) = .not. slots(target)%copy(j)
+                if (take(j)) take(j) = .not. any(y(1:dim) < box_lo(1:dim) .or. &
+                    y(1:dim) >= box_hi(1:dim))
                 if (take(j)) take(j) = deepest_solid(solids, y, 0.0_wp) == 0
                 if (take(j)) take(j) = zones%level_at(y) == source
                 if (take(j)) take(j) = zones%in_transition(y, target)
@@ -389,6 +510,7 @@ contains
             set%x(:, 1:set%n) = xn(:, keep_new)
             set%id(1:set%n) = vid(keep_new)
             set%parity = new_parity(keep_new)
+            if (lin > 0) set%lineage = lineage(:, keep_new)
             ! the split rule's masses: exactly the parent's share (2^-dim of a coarse
             ! particle, 2^dim fine ones), so the mass that turns real is what left
             if (zones%split_virtuals) parent_mass = p%m(src(parent(keep_new)))
@@ -423,11 +545,72 @@ contains
                         set%id(a) = set%id(j)
                         set%parity(a) = set%parity(j)
                         set%f(:, a) = set%f(:, j)
+                        if (lin > 0) set%lineage(:, a) = set%lineage(:, j)
                     end if
                 end do
                 set%n = a
             end if
         end subroutine make_virtuals
+
+        !> Particle i's identity as a parent (lineage): the one it took, else its own id.
+        real(wp) function identity(i)
+            integer, intent(in) :: i
+            identity = p%extra(lin)%a(1, i)
+            if (identity == 0.0_wp) identity = lineage_value(p%id(i))
+        end function identity
+
+        !> copy(j) set where fine slot j of level `target` (x, parity, lineage) would copy a
+        !> real particle of that level that stays in its region: one of the same parent and
+        !> corner within COPY_DISTANCE spacings. (Refusing coarse copies too, by identity,
+        !> drained both levels of the cylinder's ring: doc/multiresolution.md.)
+        subroutine find_copies(target, n, x, parity, lineage, copy)
+            integer, intent(in) :: target, n
+            real(wp), intent(in) :: x(:, :), lineage(:, :)
+            integer, intent(in) :: parity(:)
+            logical, intent(inout) :: copy(:)
+            integer(i8), allocatable :: keys(:)
+            integer, allocatable :: reals(:), order(:)
+            integer(i8) :: key
+            integer :: j, r, n_r, lo, hi, mid, m
+            real(wp) :: limit2, value
+            limit2 = (COPY_DISTANCE * level_phys(target)%dx)**2
+            allocate(keys(max(p%n_owned + p%n_ghost, 1)), reals(max(p%n_owned + p%n_ghost, 1)))
+            n_r = 0
+            do r = 1, p%n_owned + p%n_ghost
+                if (p%level(r) /= target .or. p%kind(r) /= KIND_FLUID) cycle
+                value = p%extra(lin)%a(2, r)
+                if (value == 0.0_wp) cycle
+                if (zones%level_at(p%x(:, r)) /= target) cycle   ! leaving now
+                n_r = n_r + 1
+                reals(n_r) = r
+                keys(n_r) = lineage_key(value, p%parity(r))
+            end do
+            allocate(order(max(n_r, 1)))
+            call id_order(keys, n_r, order)
+            do j = 1, n
+                if (lineage(2, j) == 0.0_wp) cycle
+                key = lineage_key(lineage(2, j), parity(j))
+                ! the first real with this key
+                lo = 1
+                hi = n_r + 1
+                do while (lo < hi)
+                    mid = (lo + hi) / 2
+                    if (keys(order(mid)) < key) then
+                        lo = mid + 1
+                    else
+                        hi = mid
+                    end if
+                end do
+                do m = lo, n_r
+                    if (keys(order(m)) /= key) exit
+                    r = reals(order(m))
+                    if (sum((p%x(1:dim, r) - x(1:dim, j))**2) < limit2) then
+                        copy(j) = .true.
+                        exit
+                    end if
+                end do
+            end do
+        end subroutine find_copies
 
         subroutine append_set(set)
             type(new_set_t), intent(in) :: set
@@ -452,6 +635,7 @@ contains
                 p%kind(n) = KIND_VIRTUAL
                 p%level(n) = set%level
                 p%parity(n) = set%parity(j)
+                if (lin > 0) p%extra(lin)%a(:, n) = set%lineage(:, j)
             end do
             p%n_owned = p%n_owned + set%n
             p%n_total = p%n_owned

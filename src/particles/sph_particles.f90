@@ -383,16 +383,24 @@ contains
     end subroutine particles_gather
 
     !> Append the particles keep(:) of `from` to the owned particles of p, every field (p has
-    !> no ghosts then: n_total = n_owned).
+    !> no ghosts then: n_total = n_owned). Run-time fields of p that `from` lacks are added to
+    !> it first (zero); `from` has no run-time field p lacks.
     subroutine particles_append(p, from, keep)
         type(particles_t), intent(inout) :: p, from
         integer, intent(in) :: keep(:)
-        integer :: first, n_real, n_int
+        integer :: first, n_real, n_int, k, added
         real(wp), allocatable :: rbuf(:, :)
         integer(i8), allocatable :: ibuf(:, :)
         first = p%n_owned + 1
         p%n_total = p%n_owned
         call particles_reserve(p, p%n_owned + size(keep))
+        ! the run-time fields p has and `from` lacks (a lattice made on its own): zero there
+        if (allocated(p%extra)) then
+            do k = 1, size(p%extra)
+                added = particles_add_field(from, trim(p%extra(k)%info%name), &
+                    p%extra(k)%info%width, p%extra(k)%info%flags)
+            end do
+        end if
         call pack_widths(from, ALL_FIELDS, n_real, n_int)
         allocate(rbuf(n_real, max(size(keep), 1)), ibuf(n_int, max(size(keep), 1)))
         call particles_pack(from, ALL_FIELDS, keep, size(keep), rbuf, ibuf)
