@@ -2,8 +2,12 @@
 """Drag on a body in a periodic lattice of bodies (Morris, Fox & Zhu 1997, sec. 4.3) against
 the body force on the fluid, and its convergence with resolution.
 
-    scripts/body_drag.py OUTPUT_DIR [OUTPUT_DIR ...] [--case cylinder] [--body cylinder]
-                         [--max-imbalance 1.0]
+    scripts/body_drag.py OUTPUT_DIR [OUTPUT_DIR ...] [--case NAME] [--body cylinder]
+                         [--time-averaged] [--max-imbalance 1.0]
+
+Each directory's case name is that of its one <case>_forces.csv unless --case names it, so
+runs of different inputs compare directly (for example output/cylinder against
+output/cylinder_multires).
 
 For each run: the force on the body along the body force (rows of <case>_forces.csv,
 averaged over the last `--fraction` of the run's time to smooth the pressure noise), the
@@ -115,6 +119,18 @@ def sangani_acrivos_speed(text, dim, lo, hi, drag, nu, rho0):
     return drag / (1.0 - c) / (k * nu * rho0) / (1.0 - c)
 
 
+def case_of(output_dir, case):
+    """The case name of a run directory: `case` when given, else that of its one
+    <case>_forces.csv."""
+    if case is not None:
+        return case
+    found = sorted(glob.glob(os.path.join(output_dir, '*_forces.csv')))
+    if len(found) != 1:
+        raise SystemExit(f'body_drag: {output_dir} holds {len(found)} *_forces.csv files; '
+                         'name the run with --case')
+    return os.path.basename(found[0])[:-len('_forces.csv')]
+
+
 def mean_speed(output_dir, case, t_from, axis):
     """Mass-weighted mean fluid velocity along the body force, averaged over the snapshots
     from t_from on (the superficial velocity of Darcy's law times the porosity)."""
@@ -146,7 +162,9 @@ def time_averaged(rows, last, key, out):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('output_dirs', nargs='+')
-    ap.add_argument('--case', default='cylinder')
+    ap.add_argument('--case', default=None,
+                    help="the runs' case name (&run case_name); by default each directory's "
+                         "from its one <case>_forces.csv")
     ap.add_argument('--body', default='cylinder')
     ap.add_argument('--fraction', type=float, default=0.5,
                     help='average the rows of the last fraction of the run time')
@@ -163,7 +181,8 @@ def main():
 
     drags, speeds, resistances, failed = [], [], [], False
     for out in args.output_dirs:
-        text = input_text(out, args.case)
+        case = case_of(out, args.case)
+        text = input_text(out, case)
         dim = int(numbers(values(text, 'dimension'))[0])
         lo = np.array(numbers(values(text, 'box_lo'))[:dim])
         hi = np.array(numbers(values(text, 'box_hi'))[:dim])
@@ -175,7 +194,7 @@ def main():
         cell = float(np.prod(hi - lo))
         fluid = cell - body_measure(text, args.body, dim, hi - lo)
         rows = []
-        with open(os.path.join(out, f'{args.case}_forces.csv')) as f:
+        with open(os.path.join(out, f'{case}_forces.csv')) as f:
             for row in csv.DictReader(f):
                 if row['body'].strip() == args.body:
                     rows.append(row)
@@ -191,7 +210,7 @@ def main():
         expected = rho0 * force[axis] * fluid
         imbalance = 100.0 * (drag - expected) / expected
         drags.append(drag)
-        speeds.append(mean_speed(out, args.case, (1.0 - args.fraction) * t_end, axis))
+        speeds.append(mean_speed(out, case, (1.0 - args.fraction) * t_end, axis))
         porosity = fluid / cell
         # drag per unit superficial flow of the pressure-driven problem (module docstring)
         resistances.append(drag / porosity / (rho0 * nu * porosity * speeds[-1]))

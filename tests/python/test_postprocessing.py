@@ -438,5 +438,23 @@ class TestBodyDragTimeAverage(unittest.TestCase):
         self.assertIn("no Fx_mean column", str(caught.exception))
 
 
+class TestBodyDragCaseName(unittest.TestCase):
+    """body_drag.case_of: each run directory's case from its one forces file, so runs of
+    different inputs compare in one call."""
+
+    def test_inferred_given_and_refused(self):
+        import body_drag
+        with tempfile.TemporaryDirectory() as tmp:
+            with self.assertRaises(SystemExit) as caught:
+                body_drag.case_of(tmp, None)
+            self.assertIn("--case", str(caught.exception))
+            open(os.path.join(tmp, "cylinder_multires_forces.csv"), "w").close()
+            self.assertEqual(body_drag.case_of(tmp, None), "cylinder_multires")
+            self.assertEqual(body_drag.case_of(tmp, "other"), "other")
+            open(os.path.join(tmp, "cylinder_forces.csv"), "w").close()
+            with self.assertRaises(SystemExit):
+                body_drag.case_of(tmp, None)
+
+
 if __name__ == "__main__":
     unittest.main()
