@@ -205,9 +205,11 @@ contains
         type(particles_t) :: lattice
         type(level_sites_t) :: sites
         integer :: lv, k, lin, n_sites(3, 0:MAX_LEVEL), axis
+        logical :: carries_lineage
         integer(i8) :: offset, level_max, previous_offset, linear
 
-        lin = lineage_index(p)
+        carries_lineage = lineage_index(p) > 0
+        lin = 0
         n_sites = 1
         do lv = 0, zones%n_levels - 1
             do axis = 1, cfg%domain%dimension
@@ -226,9 +228,9 @@ contains
             sites%level = lv
             sites%reach = zones%width + level_phys(lv)%kernel%support
             call particles_init(lattice, 1024, cfg%domain%dimension)
-            if (lin > 0) then
+            if (carries_lineage) then
                 call add_lineage_field(lattice)
-                lin = lineage_index(lattice)
+                lin = lineage_index(lattice)   ! the lattice's own field
             end if
             ! only the sites the level keeps: the whole lattice of a fine level would be the
             ! memory of the uniformly fine run
