@@ -44,7 +44,7 @@ module sph_transition_driver
     use sph_kernel, only: kernel_t
     use sph_transition, only: fine_virtual_positions, coarse_virtual_positions, &
         fine_virtual_split, coarse_virtual_parity, &
-        interpolate_fields, virtual_id, image_source_id
+        interpolate_fields, virtual_id, image_source_id, bisect
     implicit none
     private
     public :: level_stats_t, create_level_particles, update_transition_zones, level_totals
@@ -570,10 +570,10 @@ contains
             real(wp), intent(in) :: x(:, :), lineage(:, :)
             integer, intent(in) :: parity(:)
             logical, intent(inout) :: copy(:)
-            integer(i8), allocatable :: keys(:)
+            integer(i8), allocatable :: keys(:), sorted(:)
             integer, allocatable :: reals(:), order(:)
             integer(i8) :: key
-            integer :: j, r, n_r, lo, hi, mid, m
+            integer :: j, r, n_r, m
             real(wp) :: limit2, value
             limit2 = (COPY_DISTANCE * level_phys(target)%dx)**2
             allocate(keys(max(p%n_owned + p%n_ghost, 1)), reals(max(p%n_owned + p%n_ghost, 1)))
@@ -589,22 +589,13 @@ contains
             end do
             allocate(order(max(n_r, 1)))
             call id_order(keys, n_r, order)
+            sorted = keys(order(1:n_r))
             do j = 1, n
                 if (lineage(2, j) == 0.0_wp) cycle
                 key = lineage_key(lineage(2, j), parity(j))
-                ! the first real with this key
-                lo = 1
-                hi = n_r + 1
-                do while (lo < hi)
-                    mid = (lo + hi) / 2
-                    if (keys(order(mid)) < key) then
-                        lo = mid + 1
-                    else
-                        hi = mid
-                    end if
-                end do
-                do m = lo, n_r
-                    if (keys(order(m)) /= key) exit
+                ! every real with this key, from the first
+                do m = bisect(sorted, key), n_r
+                    if (sorted(m) /= key) exit
                     r = reals(order(m))
                     if (sum((p%x(1:dim, r) - x(1:dim, j))**2) < limit2) then
                         copy(j) = .true.

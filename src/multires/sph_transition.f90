@@ -73,7 +73,7 @@ module sph_transition
     real(wp), parameter :: MAX_AMPLIFICATION = 2.0_wp
     public :: fine_virtual_positions, coarse_virtual_positions, interpolate_fields
     public :: fine_virtual_split, coarse_virtual_parity
-    public :: virtual_id, image_source_id
+    public :: virtual_id, image_source_id, bisect
 
 contains
 
@@ -150,7 +150,8 @@ contains
         end do
     end subroutine fine_virtual_positions
 
-    !> Position of value in the ascending list s (it is there).
+    !> Position of value in the ascending list s where it is there; otherwise the first
+    !> position holding a larger value (size(s) when none does, 1 when s is empty).
     pure integer function bisect(s, value) result(k)
         integer(i8), intent(in) :: s(:), value
         integer :: lo, hi
