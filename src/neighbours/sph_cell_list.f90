@@ -10,9 +10,15 @@ module sph_cell_list
     public :: build_cross_list
 
     !> The binning of one build: kept with the list so a rebuild reuses its storage.
+    !> Cell coordinates are taken along the axes in the order `axis`: the axis with the
+    !> fewest cells first (fastest in the cell order), the one with the most last. A row of
+    !> cells then runs across the domain's short side, so the three to nine rows a query
+    !> scans lie a few hundred particles apart in the cell order rather than a whole long side
+    !> apart, and a pair loop over particles stored in that order finds its partners in L1/L2.
     type :: cell_grid_t
         integer :: dim = 2
-        integer :: ncell(3) = 1
+        integer :: axis(3) = [1, 2, 3]         !< physical axis of each cell coordinate
+        integer :: ncell(3) = 1                 !< cells along axis(1), axis(2), axis(3)
         real(wp) :: origin(3) = 0.0_wp
         real(wp) :: inv_size = 1.0_wp
         integer, allocatable :: cell_start(:)   !< (ncells + 1)
@@ -34,8 +40,9 @@ contains
 
     !> Neighbours within `radius` of the first n_query particles among the first n_total.
     !> Each query scans its 3^dim cells row by row: the cells of a row are consecutive in the
-    !> cell order, so a row is one run of `sorted`. Rows and cells are visited in the order
-    !> (z, y, x) and particles within a cell by index, so the list order is reproducible.
+    !> cell order, so a row is one run of `sorted`. Rows and cells are visited in the cell
+    !> order (cell_grid_t) and particles within a cell by index, so the list order is
+    !> reproducible.
     !> Resolution levels (multi-resolution runs): with level (of every particle) and
     !> level_radius(0:), a particle's neighbours are the particles of its own level within
     !> that level's radius; each level is binned in its own grid with its own cell size, so a
@@ -217,7 +224,7 @@ contains
         type(cell_grid_t), intent(inout) :: grid
         integer, intent(in), optional :: members(:)
         real(wp) :: lo(3), hi(3), size_used
-        integer :: i, k, ncells, cell
+        integer :: i, k, ncells, cell, span(3)
         integer(8) :: estimate
 
         grid%dim = dim
@@ -233,12 +240,23 @@ contains
         ! a stray far-away particle must not make the grid huge: cap cells at ~4 per particle
         size_used = cell_size
         do
-            grid%ncell = 1
-            grid%ncell(1:dim) = max(1, int((hi(1:dim) - lo(1:dim)) / size_used) + 1)
-            estimate = product(int(grid%ncell, 8))
+            span = 1
+            span(1:dim) = max(1, int((hi(1:dim) - lo(1:dim)) / size_used) + 1)
+            estimate = product(int(span, 8))
             if (estimate <= 4_8 * n + 64_8) exit
             size_used = size_used * 1.5_wp
         end do
+        ! the axes by their number of cells, fewest first (a stable sort: ties keep x, y, z)
+        grid%axis = [1, 2, 3]
+        do i = 2, dim
+            k = i
+            do while (k > 1)
+                if (span(grid%axis(k - 1)) <= span(grid%axis(k))) exit
+                grid%axis(k - 1:k) = grid%axis([k, k - 1])
+                k = k - 1
+            end do
+        end do
+        grid%ncell = span(grid%axis)
         grid%origin = lo
         grid%inv_size = 1.0_wp / size_used
         ncells = int(estimate)
@@ -283,13 +301,17 @@ contains
         allocate(array(max(n, 1)))
     end subroutine reserve
 
+    !> Cell coordinates of xi along grid%axis(1:dim) (see cell_grid_t).
     pure function cell_coords(grid, xi) result(c)
         type(cell_grid_t), intent(in) :: grid
         real(wp), intent(in) :: xi(3)
-        integer :: c(3)
+        integer :: c(3), k, a
         c = 1
-        c(1:grid%dim) = int((xi(1:grid%dim) - grid%origin(1:grid%dim)) * grid%inv_size) + 1
-        c(1:grid%dim) = min(max(c(1:grid%dim), 1), grid%ncell(1:grid%dim))
+        do k = 1, grid%dim
+            a = grid%axis(k)
+            c(k) = int((xi(a) - grid%origin(a)) * grid%inv_size) + 1
+            c(k) = min(max(c(k), 1), grid%ncell(k))
+        end do
     end function cell_coords
 
     pure integer function linear_cell(grid, c)
