@@ -7,7 +7,7 @@ module sph_cell_list
     implicit none
     private
     public :: neighbour_list_t, build_neighbour_list, brute_force_neighbours, cell_sort_order
-    public :: build_cross_list
+    public :: build_cross_list, cell_grid_t, bin_points, cell_candidates
 
     !> The binning of one build: kept with the list so a rebuild reuses its storage.
     !> Cell coordinates are taken along the axes in the order `axis`: the axis with the
@@ -153,6 +153,44 @@ contains
         nl%start(n_query + 1) = pairs + 1
         nl%n_pairs = pairs
     end subroutine build_cross_list
+
+    !> Bin the points x(:, 1:n) into cells at least cell_size wide (for cell_candidates).
+    subroutine bin_points(x, n, dim, cell_size, grid)
+        real(wp), intent(in) :: x(:, :)
+        integer, intent(in) :: n, dim
+        real(wp), intent(in) :: cell_size
+        type(cell_grid_t), intent(inout) :: grid
+        call bin_particles(x, n, dim, cell_size, grid)
+    end subroutine bin_points
+
+    !> cand(1:n_cand): the binned points in the 3^dim cells around xi, in the order of
+    !> build_cross_list's rows (so a caller that filters them itself visits the pairs in the
+    !> same order, without storing a list); cand grows when it is too short.
+    subroutine cell_candidates(grid, xi, cand, n_cand)
+        type(cell_grid_t), intent(in) :: grid
+        real(wp), intent(in) :: xi(3)
+        integer, allocatable, intent(inout) :: cand(:)
+        integer, intent(out) :: n_cand
+        integer :: lo(3), hi(3), b, cz, first, last, run
+        integer, allocatable :: bigger(:)
+        if (.not. allocated(cand)) allocate(cand(64))
+        n_cand = 0
+        call scan_box(grid, xi, lo, hi)
+        do cz = lo(3), hi(3)
+            do b = lo(2), hi(2)
+                call row_run(grid, b, cz, lo, hi, first, last)
+                run = last - first + 1
+                if (run <= 0) cycle
+                if (n_cand + run > size(cand)) then
+                    allocate(bigger(2 * (n_cand + run)))
+                    bigger(1:n_cand) = cand(1:n_cand)
+                    call move_alloc(bigger, cand)
+                end if
+                cand(n_cand + 1:n_cand + run) = grid%sorted(first:last)
+                n_cand = n_cand + run
+            end do
+        end do
+    end subroutine cell_candidates
 
     !> Room for the rows of n_query queries (an initial guess of per_query pairs each).
     subroutine reserve_rows(nl, n_query, per_query)

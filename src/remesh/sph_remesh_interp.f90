@@ -46,8 +46,8 @@
 !>    stat = 2). Without stat, error stop.
 module sph_remesh_interp
     use sph_kinds, only: wp
-    use sph_cell_list, only: neighbour_list_t, build_cross_list
-    use sph_interpolation_kernels, only: INTERP_M4, m4_bspline, interp_support
+    use sph_cell_list, only: cell_grid_t, bin_points, cell_candidates
+    use sph_interpolation_kernels, only: INTERP_M4, interp_support
     implicit none
     private
     public :: remesh_transfer
@@ -76,36 +76,46 @@ contains
         integer, parameter :: A_M = 1, A_E = 2, A_VOL = 3, A_S0 = 4, A_S1 = 5, A_VA = 8, &
             A_S2 = 11, A_VB = 20, A_SIZE = 28
         real(wp), allocatable :: acc(:, :)
-        ! per old particle: its pairs (offset / h, base weight, new particle)
+        ! per old particle: the new particles in its cells, and its pairs (offset / h, base
+        ! weight, new particle)
         real(wp), allocatable :: dl(:, :), wl(:), cw(:)
-        integer, allocatable :: al(:)
-        type(neighbour_list_t) :: nl
-        integer :: i, j, k, p, c, q, nloc, lost, empty, n_mfb, n_vfb
+        integer, allocatable :: al(:), cand(:)
+        type(cell_grid_t) :: grid
+        integer :: i, j, k, p, c, q, nloc, lost, empty, n_mfb, n_vfb, n_cand
         real(wp) :: d(3), f, beta(3), gam(3), t0(3), t1(3, 3), mom_old(3), mom_new(3), &
-            mass_new, dv(3), u, vj, s0, s1(3), s2(3, 3)
+            mass_new, dv(3), u, vj, s0, s1(3), s2(3, 3), xj(3), inv_h
         logical :: ok
         character(len=120) :: msg
 
         if (present(stat)) stat = 0
         m_new(1:n_new) = 0.0_wp; v_new(:, 1:n_new) = 0.0_wp
         rho_new(1:n_new) = 0.0_wp; e_new(1:n_new) = 0.0_wp
-        ! old-new pairs: M4's support is the cube of half-width 2 h
-        call build_cross_list(x_old, n_old, x_new, n_new, dim, interp_support(INTERP_M4) * h, nl)
-        nloc = 1
-        do j = 1, n_old
-            nloc = max(nloc, nl%start(j + 1) - nl%start(j))
-        end do
-        allocate(dl(3, nloc), wl(nloc), cw(nloc), al(nloc))
+        ! old-new pairs: the new particles binned in cells of M4's support half-width 2 h,
+        ! each old particle's candidates filtered by the weight itself (zero outside the
+        ! cube), no pair list stored
+        call bin_points(x_new, n_new, dim, interp_support(INTERP_M4) * h, grid)
+        allocate(cand(64), dl(3, 64), wl(64), cw(64), al(64))
         allocate(acc(A_SIZE, n_new), source=0.0_wp)
+        inv_h = 1.0_wp / h
         lost = 0
         n_mfb = 0
         do j = 1, n_old
+            xj = 0.0_wp
+            xj(1:dim) = x_old(1:dim, j)
+            call cell_candidates(grid, xj, cand, n_cand)
+            if (n_cand > size(wl)) then
+                deallocate(dl, wl, cw, al)
+                allocate(dl(3, n_cand), wl(n_cand), cw(n_cand), al(n_cand))
+            end if
             nloc = 0
-            do p = nl%start(j), nl%start(j + 1) - 1
-                k = nl%index(p)
+            do p = 1, n_cand
+                k = cand(p)
                 d = 0.0_wp
-                d(1:dim) = (x_new(1:dim, k) - x_old(1:dim, j)) / h
-                f = product(m4_bspline(d(1:dim)))
+                d(1:dim) = (x_new(1:dim, k) - xj(1:dim)) * inv_h
+                f = m4_weight(d(1))
+                do c = 2, dim
+                    f = f * m4_weight(d(c))
+                end do
                 if (f <= 0.0_wp) cycle
                 nloc = nloc + 1
                 dl(:, nloc) = d
@@ -264,6 +274,21 @@ contains
             error stop 'remesh_transfer: particles without partner within the kernel support'
         end subroutine fail
     end subroutine remesh_transfer
+
+    !> The cubic B-spline M4 (sph_interpolation_kernels' m4_bspline), here so that the
+    !> transfer's pair loop inlines it: 2/3 - s^2 + |s|^3/2 (|s| < 1), (2 - |s|)^3/6 (< 2).
+    pure real(wp) function m4_weight(s) result(w)
+        real(wp), intent(in) :: s
+        real(wp) :: a
+        a = abs(s)
+        if (a < 1.0_wp) then
+            w = 2.0_wp / 3.0_wp - a * a + 0.5_wp * a * a * a
+        else if (a < 2.0_wp) then
+            w = (2.0_wp - a)**3 / 6.0_wp
+        else
+            w = 0.0_wp
+        end if
+    end function m4_weight
 
     !> Solve the dim x dim system m x = r by Gaussian elimination with partial pivoting;
     !> ok = .false. when m is (nearly) singular.
