@@ -618,7 +618,7 @@ contains
         if (sim%cfg%numerics%fixed_dt > 0.0_wp) dt = sim%cfg%numerics%fixed_dt
         sim%uncapped_dt = dt
         if (present(dt_cap)) dt = min(dt, dt_cap)
-        call verlet_drift(sim%p, dt, integrated_density(sim))
+        call verlet_drift(sim%p, dt, integrated_density(sim), sim%step_moved)
         call refresh_halo(sim, env)
         call prepare_boundaries(sim, dt)
         call evaluate_rates(sim, env)
@@ -628,8 +628,13 @@ contains
         sim%last_limits%dt = dt
         ! shifting moves the particles after the rates were evaluated
         call shift(sim, env, dt)
-        if (sim%phys%shifting /= SHIFTING_NONE) sim%rates_stale = .true.
-        call migrate_and_rebuild(sim, env)
+        if (sim%phys%shifting /= SHIFTING_NONE) then
+            sim%rates_stale = .true.
+            call migrate_and_rebuild(sim, env)
+        else
+            ! the drift moved each particle dt |v_half|: no pass over the positions to find it
+            call migrate_and_rebuild(sim, env, moved=sim%step_moved)
+        end if
         call remesh_if_due(sim, env)
         call update_transition_zones(sim, env)
         call check_health(sim, env)
@@ -687,7 +692,7 @@ contains
         sim%time = sim%time + dt
         sim%step = sim%step + 1
         sim%last_limits%dt = dt
-        call migrate_and_rebuild(sim, env, subcycled=.true.)
+        call migrate_and_rebuild(sim, env, subcycled=.true., moved=sim%step_moved)
         call update_transition_zones(sim, env)
         call check_health(sim, env)
     end subroutine subcycled_verlet_step
@@ -830,13 +835,15 @@ contains
     !> support while 2 drift + the motion of one step stays within skin + list_skin.
     !> The multi-resolution Verlet step (subcycled: present) refreshes the virtual particles
     !> itself, before its rates, and has the zones made anew only once every level is at the
-    !> end of a step.
-    subroutine migrate_and_rebuild(sim, env, subcycled)
+    !> end of a step. moved: the largest distance an owned particle moved in this step, when
+    !> the step knows it (otherwise found from the step-start positions).
+    subroutine migrate_and_rebuild(sim, env, subcycled, moved)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
         logical, intent(in), optional :: subcycled
-        if (present(subcycled)) then
-            sim%drift = sim%drift + global_max(env, sim%step_moved)
+        real(wp), intent(in), optional :: moved
+        if (present(moved)) then
+            sim%drift = sim%drift + global_max(env, moved)
         else
             sim%drift = sim%drift + global_max(env, max_step_displacement(sim%p))
         end if

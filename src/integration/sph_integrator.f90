@@ -95,13 +95,16 @@ contains
     !> Walls stay in place; their density follows the continuity equation when it is
     !> integrated. One resolution level (every particle on level 0): the levels' drift with
     !> one level stepping at dt, which is this step bit for bit.
-    subroutine verlet_drift(p, dt, integrate_density)
+    subroutine verlet_drift(p, dt, integrate_density, moved)
         type(particles_t), intent(inout) :: p
         real(wp), intent(in) :: dt
         logical, intent(in) :: integrate_density
-        real(wp) :: elapsed(1), moved
+        !> the largest distance an owned particle moved (dt |v_half|)
+        real(wp), intent(out), optional :: moved
+        real(wp) :: elapsed(1), largest
         elapsed = 0.0_wp
-        call verlet_drift_levels(p, dt, [.true.], [dt], elapsed, integrate_density, moved)
+        call verlet_drift_levels(p, dt, [.true.], [dt], elapsed, integrate_density, largest)
+        if (present(moved)) moved = largest
     end subroutine verlet_drift
 
     !> The second half kick of velocity Verlet with the rates of the new positions (one
