@@ -73,8 +73,10 @@ contains
         ! one column instead of eight arrays): mass, m e and volume handed on, the velocity
         ! interpolant's moments (s0, s1, s2) and the sums sum u v (va) and sum u d v^T (vb)
         ! that give the corrected interpolant in one pass
-        integer, parameter :: A_M = 1, A_E = 2, A_VOL = 3, A_S0 = 4, A_S1 = 5, A_VA = 8, &
-            A_S2 = 11, A_VB = 20, A_SIZE = 28
+        ! (the first five rows fixed, the others after them, dim or dim^2 long: 16 rows in 2D,
+        ! 28 in 3D, the memory a refine's 4 N new particles hold on rank 0)
+        integer, parameter :: A_M = 1, A_E = 2, A_VOL = 3, A_S0 = 4, A_S1 = 5
+        integer :: a_va, a_s2, a_vb, a_size
         real(wp), allocatable :: acc(:, :)
         ! per old particle: the new particles in its cells, and its pairs (offset / h, base
         ! weight, new particle)
@@ -95,7 +97,11 @@ contains
         ! cube), no pair list stored
         call bin_points(x_new, n_new, dim, interp_support(INTERP_M4) * h, grid)
         allocate(cand(64), dl(3, 64), wl(64), cw(64), al(64))
-        allocate(acc(A_SIZE, n_new), source=0.0_wp)
+        a_va = A_S1 + dim
+        a_s2 = a_va + dim
+        a_vb = a_s2 + dim * dim
+        a_size = a_vb + dim * dim - 1
+        allocate(acc(a_size, n_new), source=0.0_wp)
         inv_h = 1.0_wp / h
         lost = 0
         n_mfb = 0
@@ -170,12 +176,12 @@ contains
                 d = -dl(:, p)
                 acc(A_S0, i) = acc(A_S0, i) + u
                 acc(A_S1:A_S1 + dim - 1, i) = acc(A_S1:A_S1 + dim - 1, i) + u * d(1:dim)
-                acc(A_VA:A_VA + dim - 1, i) = acc(A_VA:A_VA + dim - 1, i) + u * v_old(1:dim, j)
+                acc(a_va:a_va + dim - 1, i) = acc(a_va:a_va + dim - 1, i) + u * v_old(1:dim, j)
                 do c = 1, dim
-                    q = 3 * (c - 1)
-                    acc(A_S2 + q:A_S2 + q + dim - 1, i) = acc(A_S2 + q:A_S2 + q + dim - 1, i) &
+                    q = dim * (c - 1)
+                    acc(a_s2 + q:a_s2 + q + dim - 1, i) = acc(a_s2 + q:a_s2 + q + dim - 1, i) &
                         + u * d(1:dim) * d(c)
-                    acc(A_VB + q:A_VB + q + dim - 1, i) = acc(A_VB + q:A_VB + q + dim - 1, i) &
+                    acc(a_vb + q:a_vb + q + dim - 1, i) = acc(a_vb + q:a_vb + q + dim - 1, i) &
                         + u * d(c) * v_old(1:dim, j)
                 end do
             end do
@@ -201,8 +207,10 @@ contains
         ! v_a = sum_j u_aj (1 + gam . d_j) v_j / (s0 + gam . s1) = (va + vb gam) / (s0 + gam . s1)
         n_vfb = 0
         do i = 1, n_new
-            s2 = reshape(acc(A_S2:A_S2 + 8, i), [3, 3])
-            s1 = acc(A_S1:A_S1 + 2, i)
+            s2 = 0.0_wp
+            s2(1:dim, 1:dim) = reshape(acc(a_s2:a_s2 + dim * dim - 1, i), [dim, dim])
+            s1 = 0.0_wp
+            s1(1:dim) = acc(A_S1:A_S1 + dim - 1, i)
             s0 = acc(A_S0, i)
             call solve_small(dim, s2, -s1, gam, ok)
             if (ok) ok = s0 + dot_product(gam(1:dim), s1(1:dim)) > 1.0e-12_wp * s0
@@ -213,10 +221,10 @@ contains
             f = s0 + dot_product(gam(1:dim), s1(1:dim))
             d = 0.0_wp
             do c = 1, dim
-                q = A_VB + 3 * (c - 1)
+                q = a_vb + dim * (c - 1)
                 d(1:dim) = d(1:dim) + gam(c) * acc(q:q + dim - 1, i)
             end do
-            v_new(1:dim, i) = (acc(A_VA:A_VA + dim - 1, i) + d(1:dim)) / f
+            v_new(1:dim, i) = (acc(a_va:a_va + dim - 1, i) + d(1:dim)) / f
         end do
 
         ! one uniform correction: total momentum as before
