@@ -46,7 +46,7 @@
 !>    stat = 2). Without stat, error stop.
 module sph_remesh_interp
     use sph_kinds, only: wp
-    use sph_cell_list, only: cell_grid_t, bin_points, cell_candidates
+    use sph_cell_list, only: cell_grid_t, bin_particles, cell_candidates
     use sph_interpolation_kernels, only: INTERP_M4, interp_support
     implicit none
     private
@@ -95,7 +95,7 @@ contains
         ! old-new pairs: the new particles binned in cells of M4's support half-width 2 h,
         ! each old particle's candidates filtered by the weight itself (zero outside the
         ! cube), no pair list stored
-        call bin_points(x_new, n_new, dim, interp_support(INTERP_M4) * h, grid)
+        call bin_particles(x_new, n_new, dim, interp_support(INTERP_M4) * h, grid)
         allocate(cand(64), dl(3, 64), wl(64), cw(64), al(64))
         a_va = A_S1 + dim
         a_s2 = a_va + dim
