@@ -113,8 +113,9 @@ module sph_stepper
         !> finest level that each level's step spans in the current cycle, each level's
         !> planned step and the time since it began, the cycle's finest-level steps so far
         !> (0: every level is at the end of a step, the state is synchronised) and the step
-        !> it planned, the largest move of the last step, and the forces on the solids from
-        !> each level's last rates (xyz, pressure|viscous, solid, level)
+        !> it planned, the largest move of the last step (set by every Verlet step, sub-cycled
+        !> or not), and the forces on the solids from each level's last rates (xyz,
+        !> pressure|viscous, solid, level)
         logical :: subcycling = .false.
         integer, allocatable :: level_substeps(:)
         real(wp), allocatable :: level_span(:), level_elapsed(:)
