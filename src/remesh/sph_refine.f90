@@ -264,8 +264,22 @@ contains
         if (present(n_target)) then
             if (real(n_new, wp) < (1.0_wp - FILL_SLACK) * n_target) call fill_gaps(n_target)
         end if
+        call in_key_order()
 
     contains
+
+        !> The points in key order: the caller's fresh ids follow the keys (sph_global_ids),
+        !> so its sorts of the keys and then of the ids find them in order (one pass each
+        !> instead of a merge sort of 4 N keys, twice).
+        subroutine in_key_order()
+            integer, allocatable :: order(:)
+            integer :: i
+            if (n_new < 2) return
+            order = [(i, i = 1, n_new)]
+            call sort_by_keys(key(:, 1:n_new), order)
+            x_new = x_new(:, order)
+            key = key(:, order)
+        end subroutine in_key_order
 
         !> Gap filling (header, rule 4): midpoints (then, if needed, quarter points) of the
         !> old pairs EDGE_FACTOR dx to FILL_PAIR_MAX dx apart, in key order, each kept when no
