@@ -61,7 +61,7 @@ module sph_remesh_driver
         KIND_FLUID
     use sph_refine, only: refine_positions, WALL_BAND
     use sph_solids, only: solids_t, solid_distance, solid_reflect
-    use sph_remesh_relax, only: relax_displacements, RELAX_PASSES, RELAX_H_FACTOR
+    use sph_remesh_relax, only: relax_displacements, relax_list_t, RELAX_PASSES, RELAX_H_FACTOR
     use sph_coarsen, only: coarsen_select
     use sph_remesh_interp, only: remesh_transfer
     use sph_global_ids, only: assign_global_ids, global_max_id, id_order
@@ -317,13 +317,14 @@ contains
             integer, allocatable :: orig(:)
             real(wp) :: reach, len_(3), z(3)
             integer :: pass, ny, a, ax
+            type(relax_list_t) :: kept
             reach = 2.0_wp * RELAX_H_FACTOR * dx
             len_ = box_hi - box_lo
             allocate(moves(3, max(n_new, 1)))
             do pass = 1, RELAX_PASSES
                 call with_mirrors_and_images(dim, box_lo, box_hi, periodic, solids, reach, &
                     reach, n_new, xn, y, orig, ny)
-                call relax_displacements(dim, n_new, ny, y, dx, moves)
+                call relax_displacements(dim, n_new, ny, y, dx, moves, kept)
                 do a = 1, n_new
                     z = xn(:, a) + moves(:, a)
                     do ax = 1, dim

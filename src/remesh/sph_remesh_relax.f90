@@ -23,57 +23,109 @@ module sph_remesh_relax
     use sph_kernel, only: kernel_t, kernel_create, KERNEL_CUBIC
     implicit none
     private
-    public :: relax_displacements, RELAX_PASSES, RELAX_H_FACTOR
+    public :: relax_displacements, relax_list_t, RELAX_PASSES, RELAX_H_FACTOR
 
     integer, parameter :: RELAX_PASSES = 10
     real(wp), parameter :: RELAX_H_FACTOR = 1.3_wp
     real(wp), parameter :: RELAX_COEFFICIENT = 0.3_wp
     real(wp), parameter :: RELAX_MAX_STEP = 0.2_wp
+    !> The list of a pass serves the next ones (relax_list_t) while no point has moved more
+    !> than half this skin (in dx) since it was built.
+    real(wp), parameter :: RELAX_SKIN = 0.4_wp
+
+    !> A neighbour list kept from pass to pass (Verlet-list reuse): built at y_ref with the
+    !> pair radius plus a skin, it holds every pair within the radius while each point (image
+    !> and mirror included) stays within half the skin of where it was. Its first use builds it.
+    type :: relax_list_t
+        type(neighbour_list_t) :: nl
+        real(wp), allocatable :: y_ref(:, :)
+        integer :: ny = -1
+    end type relax_list_t
 
 contains
 
     !> One pass: displacements d(:, 1:n) of the points y(:, 1:n) of spacing dx, the points
-    !> y(:, n + 1:ny) (images and mirrors) pushing but not moved.
-    subroutine relax_displacements(dim, n, ny, y, dx, d)
+    !> y(:, n + 1:ny) (images and mirrors) pushing but not moved. kept: the list of earlier
+    !> passes over the same points (in the same order), reused while it holds every pair.
+    subroutine relax_displacements(dim, n, ny, y, dx, d, kept)
         integer, intent(in) :: dim, n, ny
         real(wp), intent(in) :: y(:, :), dx
         real(wp), intent(out) :: d(:, :)
-        type(neighbour_list_t) :: nl
+        type(relax_list_t), intent(inout), optional :: kept
+        type(relax_list_t) :: own
         type(kernel_t) :: kernel
-        real(wp) :: h, vol, r, s(3), rij(3), step
-        ! one point's partners: distances, unit vectors, dW/dr (the kernel evaluated per
-        ! point in one batch: a call per pair through sph_kernel cost a fifth of the pass)
-        real(wp), allocatable :: rs(:), unit(:, :), dw(:)
-        integer :: a, p, b, m
+        real(wp) :: h, vol
         h = RELAX_H_FACTOR * dx
         vol = dx**dim
         d(:, 1:n) = 0.0_wp
         if (n == 0) return
         kernel = kernel_create(KERNEL_CUBIC, dim, h)
-        call build_neighbour_list(y, ny, n, dim, 2.0_wp * h, nl)
-        m = maxval(nl%start(2:n + 1) - nl%start(1:n))
-        allocate(rs(m), unit(3, m), dw(m))
-        do a = 1, n
-            m = 0
-            do p = nl%start(a), nl%start(a + 1) - 1
-                b = nl%index(p)
-                if (b == a) cycle
-                rij = y(:, a) - y(:, b)
-                rij(dim + 1:) = 0.0_wp
-                r = norm2(rij)
-                if (r <= 0.0_wp .or. r >= 2.0_wp * h) cycle
-                m = m + 1
-                rs(m) = r
-                unit(:, m) = rij / r
+        if (present(kept)) then
+            call pass(kept)
+        else
+            call pass(own)
+        end if
+
+    contains
+
+        !> The displacements with `list`, built first unless it still holds every pair.
+        subroutine pass(list)
+            type(relax_list_t), intent(inout) :: list
+            real(wp) :: r, s(3), rij(3), step
+            ! one point's partners: distances, unit vectors, dW/dr (the kernel evaluated per
+            ! point in one batch: a call per pair through sph_kernel cost a fifth of the pass)
+            real(wp), allocatable :: rs(:), unit(:, :), dw(:)
+            integer :: a, p, b, m
+            if (.not. holds_pairs(list)) then
+                call build_neighbour_list(y, ny, n, dim, 2.0_wp * h + RELAX_SKIN * dx, list%nl)
+                list%y_ref = y(:, 1:ny)
+                list%ny = ny
+            end if
+            associate (nl => list%nl)
+                m = maxval(nl%start(2:n + 1) - nl%start(1:n))
+                allocate(rs(m), unit(3, m), dw(m))
+                do a = 1, n
+                    m = 0
+                    do p = nl%start(a), nl%start(a + 1) - 1
+                        b = nl%index(p)
+                        if (b == a) cycle
+                        rij = y(:, a) - y(:, b)
+                        rij(dim + 1:) = 0.0_wp
+                        r = norm2(rij)
+                        if (r <= 0.0_wp .or. r >= 2.0_wp * h) cycle
+                        m = m + 1
+                        rs(m) = r
+                        unit(:, m) = rij / r
+                    end do
+                    call kernel%dwdr_many(rs(1:m), dw(1:m))
+                    s = 0.0_wp
+                    do p = 1, m
+                        s = s + vol * dw(p) * unit(:, p)
+                    end do
+                    d(:, a) = -RELAX_COEFFICIENT * h * h * s
+                    step = norm2(d(:, a))
+                    if (step > RELAX_MAX_STEP * dx) then
+                        d(:, a) = d(:, a) * (RELAX_MAX_STEP * dx / step)
+                    end if
+                end do
+            end associate
+        end subroutine pass
+
+        !> Whether the list was built for these ny points and none has moved more than half
+        !> the skin since.
+        logical function holds_pairs(list)
+            type(relax_list_t), intent(in) :: list
+            integer :: k
+            real(wp) :: limit2
+            holds_pairs = list%ny == ny
+            if (.not. holds_pairs) return
+            limit2 = (0.5_wp * RELAX_SKIN * dx)**2
+            do k = 1, ny
+                if (sum((y(1:dim, k) - list%y_ref(1:dim, k))**2) >= limit2) then
+                    holds_pairs = .false.
+                    return
+                end if
             end do
-            call kernel%dwdr_many(rs(1:m), dw(1:m))
-            s = 0.0_wp
-            do p = 1, m
-                s = s + vol * dw(p) * unit(:, p)
-            end do
-            d(:, a) = -RELAX_COEFFICIENT * h * h * s
-            step = norm2(d(:, a))
-            if (step > RELAX_MAX_STEP * dx) d(:, a) = d(:, a) * (RELAX_MAX_STEP * dx / step)
-        end do
+        end function holds_pairs
     end subroutine relax_displacements
 end module sph_remesh_relax
