@@ -252,7 +252,7 @@ contains
         type(schedule_t), intent(inout) :: sched
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
-        real(wp) :: wall_now, rho(2), per_step, remaining
+        real(wp) :: wall_now, rho(2), per_step, remaining, vmax
         character(len=256) :: line
         call wall_clock(wall_now)
         rho = fluid_density_range(sim, env)
@@ -261,8 +261,9 @@ contains
         remaining = per_step * max(0.0_wp, (sched%t_end - sim%time) / &
             max(sim%last_limits%dt, tiny(1.0_wp)))
         remaining = min(remaining, per_step * real(sched%max_steps - sim%step, wp))
+        vmax = global_max(env, local_max_speed(sim%p, sim%phys%transport_velocity))
         write(line, '(i9,es13.5,es13.5,es16.6,es14.6,a,es12.6,es14.4,es14.3)') sim%step, &
-            sim%time, sim%last_limits%dt, global_max(env, local_max_speed(sim%p)), &
+            sim%time, sim%last_limits%dt, vmax, &
             rho(1), '..', rho(2), (wall_now - sched%wall_last) / real(sched%steps_since_log, wp), &
             remaining
         call log_info(trim(line))

@@ -240,7 +240,7 @@ contains
 
     module procedure stable_timestep
         real(wp) :: maxima(2), h
-        maxima = global_max(env, local_motion_maxima(sim%p))
+        maxima = global_max(env, local_motion_maxima(sim%p, sim%phys%transport_velocity))
         ! the finest level's smoothing length sets the step
         h = sim%phys%kernel%h
         if (multires(sim)) h = minval(sim%level_phys(:)%kernel%h)

@@ -136,24 +136,40 @@ contains
         t = elapsed + dt
         since_half = t - half
         moved2 = 0.0_wp
+        ! components written out: the arrays' leading extent (3) is not known to the compiler,
+        ! and a loop over it per particle cost twice the whole update
         do i = 1, p%n_owned
             if (.not. integrated(p%kind(i))) cycle
             lv = p%level(i)
             if (starts(lv)) then
-                p%x_old(:, i) = p%x(:, i)
-                p%v_old(:, i) = p%v(:, i)
-                p%rho_old(i) = p%rho(i)
-                p%e_old(i) = p%e(i)
-                if (integrate_density) p%rho_old(i) = p%rho(i) + half(lv) * p%drhodt(i)
+                p%x_old(1, i) = p%x(1, i)
+                p%x_old(2, i) = p%x(2, i)
+                p%x_old(3, i) = p%x(3, i)
+                if (integrate_density) then
+                    p%rho_old(i) = p%rho(i) + half(lv) * p%drhodt(i)
+                else
+                    p%rho_old(i) = p%rho(i)
+                end if
                 if (p%kind(i) /= KIND_WALL) then
-                    p%v_old(:, i) = p%v(:, i) + half(lv) * p%dvdt(:, i)
+                    p%v_old(1, i) = p%v(1, i) + half(lv) * p%dvdt(1, i)
+                    p%v_old(2, i) = p%v(2, i) + half(lv) * p%dvdt(2, i)
+                    p%v_old(3, i) = p%v(3, i) + half(lv) * p%dvdt(3, i)
                     p%e_old(i) = p%e(i) + half(lv) * p%dedt(i)
+                else
+                    p%v_old(1, i) = p%v(1, i)
+                    p%v_old(2, i) = p%v(2, i)
+                    p%v_old(3, i) = p%v(3, i)
+                    p%e_old(i) = p%e(i)
                 end if
             end if
             if (integrate_density) p%rho(i) = p%rho_old(i) + since_half(lv) * p%drhodt(i)
             if (p%kind(i) == KIND_WALL) cycle
-            p%x(:, i) = p%x_old(:, i) + t(lv) * p%v_old(:, i)
-            p%v(:, i) = p%v_old(:, i) + since_half(lv) * p%dvdt(:, i)
+            p%x(1, i) = p%x_old(1, i) + t(lv) * p%v_old(1, i)
+            p%x(2, i) = p%x_old(2, i) + t(lv) * p%v_old(2, i)
+            p%x(3, i) = p%x_old(3, i) + t(lv) * p%v_old(3, i)
+            p%v(1, i) = p%v_old(1, i) + since_half(lv) * p%dvdt(1, i)
+            p%v(2, i) = p%v_old(2, i) + since_half(lv) * p%dvdt(2, i)
+            p%v(3, i) = p%v_old(3, i) + since_half(lv) * p%dvdt(3, i)
             p%e(i) = p%e_old(i) + since_half(lv) * p%dedt(i)
             moved2 = max(moved2, p%v_old(1, i)**2 + p%v_old(2, i)**2 + p%v_old(3, i)**2)
         end do
@@ -201,7 +217,9 @@ contains
             half = 0.5_wp * elapsed(lv)
             if (integrate_density) p%rho(i) = p%rho_old(i) + half * p%drhodt(i)
             if (p%kind(i) == KIND_WALL) cycle
-            p%v(:, i) = p%v_old(:, i) + half * p%dvdt(:, i)
+            p%v(1, i) = p%v_old(1, i) + half * p%dvdt(1, i)
+            p%v(2, i) = p%v_old(2, i) + half * p%dvdt(2, i)
+            p%v(3, i) = p%v_old(3, i) + half * p%dvdt(3, i)
             p%e(i) = p%e_old(i) + half * p%dedt(i)
         end do
     end subroutine verlet_kick_levels

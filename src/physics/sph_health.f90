@@ -36,6 +36,7 @@ contains
         type(solids_t), intent(in) :: solids
         type(particles_t), intent(in) :: p
         type(health_problem_t), intent(out) :: problem
+        real(wp), parameter :: EIGHTH = 0.125_wp
         integer :: i, k, n_solids
         character(len=96) :: text
         logical, allocatable :: plane(:)
@@ -52,8 +53,11 @@ contains
             point(:, k) = solids%list(k)%point
         end do
         do i = 1, p%n_owned
-            if (.not. (all(ieee_is_finite(p%x(:, i))) .and. all(ieee_is_finite(p%v(:, i))) &
-                .and. ieee_is_finite(p%rho(i)))) then
+            ! one test per particle: a NaN or an infinity among the seven values makes their
+            ! sum non-finite; each is scaled by 1/8 (exactly) so the sum cannot overflow
+            if (.not. ieee_is_finite(EIGHTH * p%x(1, i) + EIGHTH * p%x(2, i) + &
+                EIGHTH * p%x(3, i) + EIGHTH * p%v(1, i) + EIGHTH * p%v(2, i) + &
+                EIGHTH * p%v(3, i) + EIGHTH * p%rho(i))) then
                 call found(HEALTH_NONFINITE, 'a non-finite position, velocity or density')
                 return
             end if
@@ -79,7 +83,8 @@ contains
             inside_a_solid = .true.
             do kk = 1, n_solids
                 if (plane(kk)) then
-                    if (dot_product(normal(:, kk), x - point(:, kk)) < 0.0_wp) return
+                    if (normal(1, kk) * (x(1) - point(1, kk)) + normal(2, kk) * (x(2) - &
+                        point(2, kk)) + normal(3, kk) * (x(3) - point(3, kk)) < 0.0_wp) return
                 else
                     if (solid_distance(solids%list(kk), x) < 0.0_wp) return
                 end if

@@ -597,28 +597,43 @@ contains
 
     !> Largest speed among owned fluid particles, real or virtual (for the CFL limit and the
     !> log).
-    pure real(wp) function local_max_speed(p)
+    pure real(wp) function local_max_speed(p, transport)
         type(particles_t), intent(in) :: p
+        logical, intent(in) :: transport   !< as local_motion_maxima
         real(wp) :: maxima(2)
-        maxima = local_motion_maxima(p)
+        maxima = local_motion_maxima(p, transport)
         local_max_speed = maxima(1)
     end function local_max_speed
 
     !> The largest speed (CFL limit) and acceleration magnitude (force limit, eq. 4.3) among
     !> owned fluid particles, real or virtual, in one pass. The speed is that of the
     !> transport velocity, which moves the particles (v when it is off).
-    pure function local_motion_maxima(p) result(maxima)
+    pure function local_motion_maxima(p, transport) result(maxima)
         type(particles_t), intent(in) :: p
+        !> the transport-velocity formulation is in use (phys%transport_velocity)
+        logical, intent(in) :: transport
         real(wp) :: maxima(2)
         real(wp) :: speed2, accel2
         integer :: i
         speed2 = 0.0_wp
         accel2 = 0.0_wp
-        do i = 1, p%n_owned
-            if (.not. moves_with_flow(p%kind(i))) cycle
-            speed2 = max(speed2, sum((p%v(:, i) + p%dv_transport(:, i))**2))
-            accel2 = max(accel2, sum(p%dvdt(:, i)**2))
-        end do
+        ! components written out (a loop over the unknown leading extent per particle cost
+        ! more than the arithmetic; moves_with_flow written out, as gfortran does not inline
+        ! across modules); the transport offsets are read only when they are in use
+        if (transport) then
+            do i = 1, p%n_owned
+                if (.not. (p%kind(i) == KIND_FLUID .or. p%kind(i) == KIND_VIRTUAL)) cycle
+                speed2 = max(speed2, (p%v(1, i) + p%dv_transport(1, i))**2 + &
+                    (p%v(2, i) + p%dv_transport(2, i))**2 + (p%v(3, i) + p%dv_transport(3, i))**2)
+                accel2 = max(accel2, p%dvdt(1, i)**2 + p%dvdt(2, i)**2 + p%dvdt(3, i)**2)
+            end do
+        else
+            do i = 1, p%n_owned
+                if (.not. (p%kind(i) == KIND_FLUID .or. p%kind(i) == KIND_VIRTUAL)) cycle
+                speed2 = max(speed2, p%v(1, i)**2 + p%v(2, i)**2 + p%v(3, i)**2)
+                accel2 = max(accel2, p%dvdt(1, i)**2 + p%dvdt(2, i)**2 + p%dvdt(3, i)**2)
+            end do
+        end if
         maxima = sqrt([speed2, accel2])
     end function local_motion_maxima
 end module sph_rates
