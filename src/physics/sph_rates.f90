@@ -269,7 +269,8 @@ contains
         logical, allocatable :: flows(:)      !< fluid, real or virtual (moves_with_flow)
         real(wp), allocatable :: handed(:, :) !< rates handed on by morris_fluid_pairs
         integer, allocatable :: other(:)      !< the partners of i that are not fluid
-        logical :: repulsive_walls, morris_walls, strain_viscosity, tvf, fast_fluid
+        logical :: repulsive_walls, morris_walls, strain_viscosity, tvf, fast_fluid, fast_walls
+        logical, allocatable :: curved(:)     !< solid s (1..) is not a plane
         real(wp), allocatable :: vol_sq(:)   !< transport velocity: (m/rho)^2 of all particles
 
         support2 = phys%kernel%support**2
@@ -306,6 +307,16 @@ contains
         p_b = phys%transport_pressure
         ! the terms morris_fluid_pairs evaluates: Morris' viscosity, no transport velocity
         fast_fluid = phys%viscosity == VISCOSITY_MORRIS .and. .not. tvf
+        ! and the terms morris_wall_pairs evaluates: Morris' walls besides
+        fast_walls = fast_fluid .and. morris_walls
+        allocate(curved(0:0), source=.false.)
+        if (present(solids)) then
+            if (allocated(solids%list)) then
+                deallocate(curved)
+                allocate(curved(0:size(solids%list)), source=.false.)
+                curved(1:) = solids%list(:)%shape /= SOLID_PLANE
+            end if
+        end if
         if (tvf) then
             allocate(vol_sq(p%n_total))
             vol_sq(:) = (p%m(1:p%n_total) / p%rho(1:p%n_total))**2
@@ -379,7 +390,9 @@ contains
             end do
             if (n_fluid > 0) call morris_fluid_pairs(n_fluid, near, d_near, grad_near, &
                 visc_near, i, visc_scale, state, drho, dv, de, handed)
-            do m = n_fluid + 1, n_near
+            ! Morris' walls: every other partner is a wall particle (morris_wall_pairs)
+            if (fast_walls) call morris_wall_pairs(n_fluid + 1, n_near)
+            do m = merge(n_near + 1, n_fluid + 1, fast_walls), n_near
                 j = near(m)
                 d = d_near(:, m)
                 r2 = r2_near(m)
@@ -486,6 +499,47 @@ contains
             if (p%kind(i) /= KIND_FLUID) return
             force_slot = p%solid(jj)
         end function force_slot
+
+        !> The pairs near(first:last) of owned particle i with Morris wall particles, under
+        !> Morris' viscosity without the transport velocity (fast_walls): the general loop's
+        !> terms for such a pair, in its order of operations, without its tests per pair:
+        !>   f = -(p_i/rho_i^2 + p_j/rho_j^2) grad W + nu s (1/rho_i + 1/rho_j) visc_f beta v_ij,
+        !> beta Morris' factor (a plane wall's inline, a body's through wall_beta).
+        subroutine morris_wall_pairs(first, last)
+            integer, intent(in) :: first, last
+            integer :: mm, jj, ss
+            real(wp) :: gw(3), vw(3), vgw, pw, cw, bw, vv(3), fw(3), ew, mw, df
+            do mm = first, last
+                jj = near(mm)
+                mw = state(4, jj)
+                gw = d_near(:, mm) * grad_near(mm)
+                vw = state(1:3, i) - state(1:3, jj)
+                vgw = vw(1) * gw(1) + vw(2) * gw(2) + vw(3) * gw(3)
+                pw = state(5, i) + state(5, jj)
+                fw = -pw * gw
+                ew = 0.5_wp * pw * vgw
+                cw = visc_scale * (state(6, i) + state(6, jj)) * visc_near(mm)
+                if (curved(p%solid(jj))) then
+                    bw = wall_beta(phys, p, i, jj, solids)
+                else
+                    df = p%wall_normal(1, jj) * (xi(1) - p%x(1, jj)) + p%wall_normal(2, jj) * &
+                        (xi(2) - p%x(2, jj)) + p%wall_normal(3, jj) * (xi(3) - p%x(3, jj)) - &
+                        p%wall_distance(jj)
+                    bw = morris_beta(df, p%wall_distance(jj), phys%beta_max)
+                end if
+                vv = bw * vw
+                fw = fw + cw * vv
+                ew = ew - 0.5_wp * cw * (vv(1) * vv(1) + vv(2) * vv(2) + vv(3) * vv(3))
+                drho = drho + mw * vgw
+                dv = dv + mw * fw
+                de = de + mw * ew
+                ss = force_slot(jj)
+                if (ss > 0) then
+                    wall_forces(:, 1, ss) = wall_forces(:, 1, ss) + m_i * mw * pw * gw
+                    wall_forces(:, 2, ss) = wall_forces(:, 2, ss) - m_i * mw * (fw + pw * gw)
+                end if
+            end do
+        end subroutine morris_wall_pairs
 
         !> Morris wall particles follow the continuity equation with their own velocity.
         subroutine wall_density_rate(iw)
