@@ -4,7 +4,7 @@ module sph_eos
     implicit none
     private
     public :: EOS_MORRIS, EOS_MORRIS_RELATIVE, EOS_TAIT, eos_id_from_name, eos_pressure
-    public :: eos_density
+    public :: eos_density, eos_pressure_many
     public :: morris_sound_speed
 
     integer, parameter :: EOS_MORRIS = 1           !< p = c^2 rho (Morris et al. 1997)
@@ -38,6 +38,24 @@ contains
             eos_pressure = c * c * rho
         end select
     end function eos_pressure
+
+    !> p(k) = eos_pressure(id, rho(k), rho0, c, gamma) + offset for every k, the form chosen
+    !> once so that the loop vectorises (every particle at every rate evaluation).
+    pure subroutine eos_pressure_many(id, rho, rho0, c, gamma, offset, p)
+        integer, intent(in) :: id
+        real(wp), intent(in) :: rho(:), rho0, c, gamma, offset
+        real(wp), intent(out) :: p(:)
+        real(wp) :: c2
+        c2 = c * c
+        select case (id)
+        case (EOS_MORRIS_RELATIVE)
+            p = c2 * (rho - rho0) + offset
+        case (EOS_TAIT)
+            p = c2 * rho0 / gamma * ((rho / rho0)**gamma - 1.0_wp) + offset
+        case default
+            p = c2 * rho + offset
+        end select
+    end subroutine eos_pressure_many
 
     !> The density of a pressure: the inverse of eos_pressure. Tait densities are kept
     !> positive (a tension beyond -c^2 rho0 / gamma has no Tait density).

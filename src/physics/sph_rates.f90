@@ -36,7 +36,7 @@ module sph_rates
     use sph_cell_list, only: neighbour_list_t
     use sph_physics, only: physics_t, VISCOSITY_MORRIS, VISCOSITY_STRAIN_RATE, WALLS_MORRIS, &
         WALLS_REPULSIVE, WALLS_REPULSIVE_MIRROR, WALL_PRESSURE_CONTINUITY
-    use sph_eos, only: eos_pressure, eos_density
+    use sph_eos, only: eos_pressure_many, eos_density
     use sph_solids, only: solids_t, solid_distance, solid_normal, SOLID_PLANE
     implicit none
     private
@@ -66,8 +66,8 @@ contains
         type(physics_t), intent(in) :: phys
         type(particles_t), intent(inout) :: p
         integer, intent(in) :: first, last
-        p%p(first:last) = eos_pressure(phys%eos, p%rho(first:last), phys%rho0, phys%c, &
-            phys%gamma) + phys%background_pressure
+        call eos_pressure_many(phys%eos, p%rho(first:last), phys%rho0, phys%c, phys%gamma, &
+            phys%background_pressure, p%p(first:last))
     end subroutine update_pressure
 
     !> Density of owned Morris wall particles from the fluid around them (Adami, Hu & Adams
@@ -285,22 +285,29 @@ contains
         ! what a pair reads of j, packed: one or two cache lines per neighbour
         ! of the particles of this level only: the list pairs no others (half the work of a
         ! two-level run, evaluated level by level)
+        ! (the passes over all particles below write the components out and test the kinds
+        ! of moves_with_flow inline: gfortran neither knows the arrays' leading extent nor
+        ! inlines across modules, and the loops cost more than their work)
         call take_scratch(p%n_total, state, handed, paired, flows)
         do j = 1, p%n_total
             if (other_level(p, j, level)) cycle
-            state(1:3, j) = p%v(:, j)
+            state(1, j) = p%v(1, j)
+            state(2, j) = p%v(2, j)
+            state(3, j) = p%v(3, j)
             state(4, j) = p%m(j)
             state(5, j) = p%p(j) / p%rho(j)**2
             state(6, j) = 1.0_wp / p%rho(j)
-            flows(j) = moves_with_flow(p%kind(j))
+            flows(j) = p%kind(j) == KIND_FLUID .or. p%kind(j) == KIND_VIRTUAL
             handed(:, j) = 0.0_wp
         end do
-        paired(:) = .false.
+        paired(1:p%n_total) = .false.
         do i = 1, p%n_owned
             if (other_level(p, i, level)) cycle
-            paired(i) = moves_with_flow(p%kind(i))
+            paired(i) = flows(i)
             p%drhodt(i) = 0.0_wp
-            p%dvdt(:, i) = 0.0_wp
+            p%dvdt(1, i) = 0.0_wp
+            p%dvdt(2, i) = 0.0_wp
+            p%dvdt(3, i) = 0.0_wp
             p%dedt(i) = 0.0_wp
         end do
         tvf = phys%transport_velocity
@@ -471,14 +478,18 @@ contains
             end do
             if (strain_viscosity) de = de + mu_i / (2.0_wp * rho_i) * sum(eps_i * eps_i)
             p%drhodt(i) = p%drhodt(i) + drho
-            p%dvdt(:, i) = p%dvdt(:, i) + dv
+            p%dvdt(1, i) = p%dvdt(1, i) + dv(1)
+            p%dvdt(2, i) = p%dvdt(2, i) + dv(2)
+            p%dvdt(3, i) = p%dvdt(3, i) + dv(3)
             p%dedt(i) = p%dedt(i) + de
             if (tvf) p%dvdt_background(:, i) = p%dvdt_background(:, i) + dvb
         end do
         do i = 1, p%n_owned
             if (.not. paired(i)) cycle
             p%drhodt(i) = p%drhodt(i) + handed(1, i)
-            p%dvdt(:, i) = p%dvdt(:, i) + handed(2:4, i) + phys%body_force
+            p%dvdt(1, i) = p%dvdt(1, i) + handed(2, i) + phys%body_force(1)
+            p%dvdt(2, i) = p%dvdt(2, i) + handed(3, i) + phys%body_force(2)
+            p%dvdt(3, i) = p%dvdt(3, i) + handed(4, i) + phys%body_force(3)
             p%dedt(i) = p%dedt(i) + handed(5, i)
         end do
         call move_alloc(state, kept_scratch%state)
