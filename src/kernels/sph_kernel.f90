@@ -210,10 +210,15 @@ contains
         real(wp), intent(in) :: r(:)
         real(wp), intent(out) :: dwdr(:)
         integer :: k
+        real(wp) :: q
         select case (self%id)
         case (KERNEL_CUBIC)
+            ! cubic_derivative without branches (both pieces, one chosen), so the loop
+            ! vectorises; beyond q = 2 the second piece is -0
             do k = 1, size(r)
-                dwdr(k) = self%dw_norm * cubic_derivative(r(k) * self%inv_h)
+                q = r(k) * self%inv_h
+                dwdr(k) = self%dw_norm * merge(-3.0_wp * q + 2.25_wp * q**2, &
+                    -0.75_wp * max(2.0_wp - q, 0.0_wp)**2, q < 1.0_wp)
             end do
         case default
             do k = 1, size(r)
