@@ -204,7 +204,8 @@ contains
         kernel_t_dwdr = self%dw_norm * shape_derivative(self%id, self%dim, r * self%inv_h)
     end function kernel_t_dwdr
 
-    !> dwdr(k) = dW/dr (r(k)) for k = 1..size(r), the same values as self%dwdr(r(k)).
+    !> dwdr(k) = dW/dr (r(k)) for k = 1..size(r), the values of self%dwdr(r(k)) to round-off
+    !> (the pieces without branches, so the loops vectorise).
     pure subroutine kernel_t_dwdr_many(self, r, dwdr)
         class(kernel_t), intent(in) :: self
         real(wp), intent(in) :: r(:)
@@ -220,6 +221,25 @@ contains
                 dwdr(k) = self%dw_norm * merge(-3.0_wp * q + 2.25_wp * q**2, &
                     -0.75_wp * max(2.0_wp - q, 0.0_wp)**2, q < 1.0_wp)
             end do
+        case (KERNEL_QUINTIC)
+            ! shape_derivative's three terms, each clamped instead of tested
+            do k = 1, size(r)
+                q = r(k) * self%inv_h
+                dwdr(k) = self%dw_norm * (-5.0_wp * max(3.0_wp - q, 0.0_wp)**4 + 30.0_wp * &
+                    max(2.0_wp - q, 0.0_wp)**4 - 75.0_wp * max(1.0_wp - q, 0.0_wp)**4)
+            end do
+        case (KERNEL_WENDLAND_C2)
+            if (self%dim == 1) then
+                do k = 1, size(r)
+                    dwdr(k) = self%dw_norm * shape_derivative(self%id, self%dim, &
+                        r(k) * self%inv_h)
+                end do
+            else
+                do k = 1, size(r)
+                    q = r(k) * self%inv_h
+                    dwdr(k) = self%dw_norm * (-5.0_wp * q * max(1.0_wp - 0.5_wp * q, 0.0_wp)**3)
+                end do
+            end if
         case default
             do k = 1, size(r)
                 dwdr(k) = self%dw_norm * shape_derivative(self%id, self%dim, r(k) * self%inv_h)
