@@ -553,22 +553,38 @@ contains
         end subroutine morris_wall_pairs
 
         !> Morris wall particles follow the continuity equation with their own velocity.
+        !> (As the fluid's rates: the partners within the support first, then dW/dr of all of
+        !> them in one kernel call; partners beyond the support would add dW/dr = 0.)
         subroutine wall_density_rate(iw)
             integer, intent(in) :: iw
-            integer :: kk, jj
-            real(wp) :: dd(3), rr
-            drho = 0.0_wp
+            integer :: kk, jj, mm, nw
+            real(wp) :: dd(3), rr2, gw
+            nw = 0
             do kk = nl%start(iw), nl%start(iw + 1) - 1
                 jj = nl%index(kk)
                 if (repulsive_only(phys, p%kind(jj))) cycle
                 ! walls are rigid: a belt (lid) sliding past a resting wall does not compress
                 ! either of them, so only the fluid changes a wall particle's density
                 if (p%kind(jj) == KIND_WALL) cycle
-                dd = p%x(:, iw) - p%x(:, jj)
-                rr = norm2(dd)
-                if (rr <= 0.0_wp) cycle
-                drho = drho + p%m(jj) * dot_product(p%v(:, iw) - p%v(:, jj), &
-                    dd * (phys%kernel%dwdr(rr) / rr))
+                dd(1) = p%x(1, iw) - p%x(1, jj)
+                dd(2) = p%x(2, iw) - p%x(2, jj)
+                dd(3) = p%x(3, iw) - p%x(3, jj)
+                rr2 = dd(1)**2 + dd(2)**2 + dd(3)**2
+                if (rr2 <= 0.0_wp .or. rr2 >= support2) cycle
+                nw = nw + 1
+                near(nw) = jj
+                d_near(:, nw) = dd
+                r2_near(nw) = rr2
+            end do
+            r_near(1:nw) = sqrt(r2_near(1:nw))
+            call phys%kernel%dwdr_many(r_near(1:nw), dwdr_near(1:nw))
+            drho = 0.0_wp
+            do mm = 1, nw
+                jj = near(mm)
+                gw = dwdr_near(mm) / r_near(mm)
+                drho = drho + state(4, jj) * ((state(1, iw) - state(1, jj)) * (d_near(1, mm) &
+                    * gw) + (state(2, iw) - state(2, jj)) * (d_near(2, mm) * gw) + &
+                    (state(3, iw) - state(3, jj)) * (d_near(3, mm) * gw))
             end do
             p%drhodt(iw) = drho
         end subroutine wall_density_rate
