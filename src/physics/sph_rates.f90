@@ -520,6 +520,7 @@ contains
             integer, intent(in) :: first, last
             integer :: mm, jj, ss
             real(wp) :: gw(3), vw(3), vgw, pw, cw, bw, vv(3), fw(3), ew, mw, df
+            logical :: bw_curved
             do mm = first, last
                 jj = near(mm)
                 mw = state(4, jj)
@@ -530,7 +531,13 @@ contains
                 fw = -pw * gw
                 ew = 0.5_wp * pw * vgw
                 cw = visc_scale * (state(6, i) + state(6, jj)) * visc_near(mm)
-                if (curved(p%solid(jj))) then
+                ! (a wall particle of a solid not passed in, as in wall_beta: its plane)
+                if (p%solid(jj) <= ubound(curved, 1)) then
+                    bw_curved = curved(p%solid(jj))
+                else
+                    bw_curved = .false.
+                end if
+                if (bw_curved) then
                     bw = wall_beta(phys, p, i, jj, solids)
                 else
                     df = p%wall_normal(1, jj) * (xi(1) - p%x(1, jj)) + p%wall_normal(2, jj) * &
