@@ -3,49 +3,53 @@
 !> algorithms are the serial ones of src/remesh (no MPI there): sph_refine for the new
 !> positions, sph_coarsen for the kept set, sph_remesh_interp for the conservative transfer.
 !>
-!> Layout: the fluid particles are gathered on rank 0, remeshed there as ONE set with the
-!> periodic box, and the new fluid particles are left on rank 0 as owned particles; the caller
-!> migrates them to their owners (migrate_particles) and rebuilds the halo and the neighbours.
-!> Why not each rank on its owned particles with its halo:
+!> Layout. The new POSITIONS are made on rank 0 from every fluid particle's position and id
+!> (gathered there, 32 bytes a particle), as ONE set with the periodic box; the FIELDS are
+!> handed on by every rank for its part of the domain (the transfer, below), so each rank
+!> ends with the new fluid particles in its part as owned particles; the caller
+!> rebalances (domain_partition, migrate_particles) and rebuilds the halo and the neighbours.
+!> Why the positions on one rank:
 !>  - coarsen_select tags in the order of a hash of the ids (Jones-Plassmann priorities): the
 !>    tag of a particle depends on a chain of earlier-visited neighbours that no fixed halo
 !>    width bounds, so a halo-local call gives kept sets that differ with the rank count near
 !>    rank boundaries; doing it locally needs a parallel tagging loop (tag what has no
-!>    untagged earlier neighbour, exchange tags, repeat) inside sph_coarsen;
-!>  - remesh_transfer corrects momentum with ONE uniform velocity shift over the particles it
-!>    is given; applied per rank it would give each rank a different shift (a velocity jump at
-!>    rank boundaries wherever a particle falls back to lower order).
-!> Both need the src/remesh routines split into stages; the driver's interface (particles in,
-!> particles out, a report) does not change when that is done. The price today: rank 0 holds
-!> every fluid particle (about 110 bytes each, plus the work arrays of the algorithms) during
-!> a remesh. In exchange the result is identical, bit for bit, on any number of ranks.
+!>    untagged earlier neighbour, exchange tags, repeat) inside sph_coarsen; sph_refine's
+!>    thinning and gap filling are greedy passes in key order of the same kind;
+!>  - the kept set and the new ids are then identical, bit for bit, on any number of ranks.
+!> The price: rank 0 holds every fluid particle's position and every new position with its
+!> key (about 70 bytes per new particle) during a remesh.
+!>
+!> Transfer (sph_remesh_interp's stages). The old fluid particles are spread by an ORB
+!> decomposition of their own (domain_partition over their positions, migrate_particles),
+!> the new positions sent by rank 0 to the ranks owning them there, and each rank takes as
+!> ghosts the new particles within NEW_REACH h of its part (periodic images included,
+!> sph_halo); h is the coarser spacing. Each rank accumulates, from the old particles it
+!> owns, into its new particles and their ghosts (transfer_accumulate: an old particle's
+!> weights are normalised over every new particle within 2 h, all of which it sees, and an
+!> isolated one hands everything to the nearest within 4 h); the ghosts' columns are added
+!> to their owners' (halo_reverse_sum), and each rank finishes its own new particles
+!> (transfer_finish). Every old-new pair within the support is counted once, as by one
+!> rank over the periodic box; sums come in another order on another rank count, so the
+!> fields agree across rank counts to round-off (the positions and ids exactly). Momentum:
+!> one uniform correction over all new particles with the old total (global sums).
 !>
 !> Ids: refined particles get fresh ids from their refinement keys (sph_global_ids, base =
 !> the largest id of any particle, walls included); kept particles of a coarsening keep their
 !> ids. Same level = refine, then coarsen the refined set (its kept particles carry the fresh
 !> ids), with ONE transfer from the old particles to the final ones.
 !>
-!> Transfer across periodic faces. remesh_transfer knows no box, so it is handed periodic
-!> images of the old and of the new particles within REACH = 5 h of the box (periodic axes
-!> only), h the coarser spacing. Each new particle in the box takes its mass from the old
-!> particles (in the box or images) within its support (2 h per axis); an image of an old
-!> particle within 2 h of the box sees all its targets (new particles and images within 4 h),
-!> the same set its original sees, shifted, so it hands on the same fractions and the masses
-!> of the particles in the box are those of a periodic transfer. Only the particles in the box
-!> are kept; the images' masses are dropped. Momentum: the uniform correction is redone over
-!> the particles in the box with the old total momentum (global sums).
-!>
 !> Next to solids (optional argument solids): refine_positions applies its wall rule, and the
 !> transfer is handed the mirror images (across each solid surface) of the old and new
 !> particles within MIRROR_REACH = 3 h of it, the old ones with their mass, velocity, density
-!> and energy; the periodic images are taken of the particles and their mirrors together
-!> (mirrors first: with_mirrors_and_images). A new particle next to a wall then sees old
-!> particles on both sides, as in the interior, and takes a mass that matches its volume
-!> (without mirrors the first row got 20 % too little: only the old row behind it reaches
-!> it). Only the particles in the box are kept; as for a plane wall the exchange with the
+!> and energy (each rank mirrors the old particles it owns, and its new particles with their
+!> ghosts: the mirror of a new particle within 2 h of an old one lies at most
+!> (2 + 2 MIRROR_REACH) h from it, which NEW_REACH covers). A new particle next to a wall then
+!> sees old particles on both sides, as in the interior, and takes a mass that matches its
+!> volume (without mirrors the first row got 20 % too little: only the old row behind it
+!> reaches it). The mirrors' shares are dropped; as for a plane wall the exchange with the
 !> mirrors is symmetric only to round-off (and for a curved one to O(dx/R)), the new masses
 !> and densities are scaled alike by (old total mass) / (new total mass), and momentum gets
-!> the uniform correction below.
+!> the uniform correction above.
 !>
 !> Density: rho_new = m_new / (volume handed on), the volume m/rho of each old particle being
 !> handed on with the same weights as its mass (sph_remesh_interp): a uniform density stays
@@ -53,17 +57,22 @@
 !> handed-on m e divided by the new mass. Pressure, rates and start-of-step copies are left to
 !> the caller (update_pressure; the next step saves its start).
 module sph_remesh_driver
-    use mpi_f08, only: MPI_Gather, MPI_Gatherv, MPI_INTEGER, MPI_Wtime
+    use mpi_f08, only: MPI_Gather, MPI_Gatherv, MPI_Scatter, MPI_Scatterv, MPI_INTEGER, &
+        MPI_Wtime
     use sph_kinds, only: wp, i8
     use sph_errors, only: check_mpi
-    use sph_mpi_env, only: mpi_env_t, mpi_wp, mpi_i8, global_sum, global_max, agreed_status
-    use sph_particles, only: particles_t, particles_gather, particles_reserve, particles_clear, &
-        KIND_FLUID
+    use sph_mpi_env, only: mpi_env_t, mpi_wp, mpi_i8, global_sum, global_max, agreed_status, &
+        broadcast_text
+    use sph_particles, only: particles_t, particles_init, particles_reserve, particles_clear, &
+        particles_append, particles_add_field, KIND_FLUID
+    use sph_domain, only: domain_t, domain_create, domain_partition, domain_owner, &
+        migrate_particles
+    use sph_halo, only: halo_t, halo_setup, halo_build, halo_reverse_sum
     use sph_refine, only: refine_positions, WALL_BAND
     use sph_solids, only: solids_t, solid_distance, solid_reflect
     use sph_remesh_relax, only: relax_displacements, relax_list_t, RELAX_PASSES, RELAX_H_FACTOR
     use sph_coarsen, only: coarsen_select
-    use sph_remesh_interp, only: remesh_transfer
+    use sph_remesh_interp, only: transfer_accumulate, transfer_finish, transfer_rows
     use sph_global_ids, only: assign_global_ids, global_max_id, id_order
     implicit none
     private
@@ -75,10 +84,13 @@ module sph_remesh_driver
     integer, parameter :: REMESH_COARSEN = 2
     integer, parameter :: REMESH_SAME = 3
 
-    !> image reach of the transfer, in units of the transfer spacing h (see the module header)
-    real(wp), parameter :: REACH = 5.0_wp
     !> mirror reach of the transfer next to solids, in units of h (see the module header)
     real(wp), parameter :: MIRROR_REACH = 3.0_wp
+    !> how far (in h) from its part of the domain a rank needs the new particles in the
+    !> transfer: an isolated old particle's nearest within 4 h; next to solids the new
+    !> particles whose mirrors lie within 2 h of an old one (module header)
+    real(wp), parameter :: NEW_REACH = 4.0_wp
+    real(wp), parameter :: NEW_REACH_SOLIDS = 2.0_wp + 2.0_wp * MIRROR_REACH
     !> same-level remeshing keeps no new particle closer than this (in dx) to a solid
     real(wp), parameter :: SAME_LEVEL_WALL_GAP = 0.4_wp
 
@@ -125,13 +137,15 @@ contains
     end function remesh_spacing_factor
 
     !> Remesh the owned fluid particles of p (collective). dx: their spacing; box_lo/box_hi,
-    !> periodic: the domain; h_new: smoothing length given to the new particles. On return
-    !> every rank has its non-fluid owned particles unchanged (first, in their order) and
-    !> rank 0 also holds all the new fluid particles after them; ghosts and mirrors are gone
-    !> (n_total = n_owned). The caller migrates and rebuilds. stat /= 0 (the same on every
-    !> rank) when the algorithms refuse the set; p is then unchanged. solids: the walls and
-    !> bodies (absolute coordinates), for sph_refine's wall rule and the mirrored transfer
-    !> (module header); without them the walls are ignored.
+    !> periodic: the domain; h_new: smoothing length given to the new particles. The fluid
+    !> may be spread over the ranks in any way. On return every rank has the new fluid
+    !> particles of its part of the transfer's decomposition (module header), in id order,
+    !> and after them its particles that are not fluid, unchanged and in their order; ghosts
+    !> and mirrors are gone (n_total = n_owned). The caller rebalances and rebuilds.
+    !> stat /= 0 (the same on every rank) when the algorithms refuse the set; p then holds the
+    !> particles it had (the fluid perhaps on other ranks). solids: the walls and bodies
+    !> (absolute coordinates), for sph_refine's wall rule and the mirrored transfer (module
+    !> header); without them the walls are ignored.
     subroutine remesh_fluid(env, mode, dim, dx, box_lo, box_hi, periodic, h_new, p, report, &
             stat, errmsg, solids)
         type(mpi_env_t), intent(in) :: env
@@ -143,10 +157,9 @@ contains
         integer, intent(out) :: stat
         character(len=:), allocatable, intent(out) :: errmsg
         type(solids_t), intent(in), optional :: solids
-        real(wp), allocatable :: x(:, :), v(:, :), m(:), rho(:), e(:)
-        real(wp), allocatable :: xn(:, :), vn(:, :), mn(:), rhon(:), en(:)
+        real(wp), allocatable :: x(:, :), xn(:, :)
         integer(i8), allocatable :: ids(:), idn(:)
-        integer :: n, n_new, my_stat, k, c
+        integer :: n, n_new, my_stat
         integer(i8) :: base
         real(wp) :: t0, local(4), ghost_ratio
         character(len=:), allocatable :: message
@@ -164,10 +177,10 @@ contains
         call unpack_totals(global_sum(env, local), report%mass_before, report%momentum_before)
         base = global_max_id(env, p%id, p%n_owned)
 
-        call gather_fluid(env, p, fluid, n, x, v, m, rho, e, ids)
+        call gather_positions(env, p, fluid, n, x, ids)
         my_stat = 0
         n_new = 0
-        allocate(xn(3, 0), vn(3, 0), mn(0), rhon(0), en(0), idn(0))
+        allocate(xn(3, 0), idn(0))
         if (env%rank == 0) call new_positions(my_stat, message)
         if (refused()) return
         ! fresh ids for refined particles (collective; only rank 0 has keys)
@@ -183,37 +196,10 @@ contains
         ! the new set in id order: its particles then lie about in space order (the ids follow
         ! the keys, the keys the old ids), for the transfer and for the caller's id order
         if (env%rank == 0 .and. my_stat == 0) call in_id_order()
-        if (env%rank == 0 .and. my_stat == 0) call transfer(my_stat, message)
         if (refused()) return
-
-        ! the non-fluid particles first, then (rank 0) the new fluid particles
-        call particles_gather(p, pack([(k, k = 1, p%n_owned)], .not. fluid))
-        p%n_owned = count(.not. fluid)
-        p%n_ghost = 0
-        p%n_total = p%n_owned
-        ! room for the ghosts of the new set too (as many per owned particle as before): the
-        ! caller's halo build would otherwise grow every field again, copying them all
-        call particles_reserve(p, int(real(p%n_owned + n_new, wp) * ghost_ratio))
-        if (n_new > 0) call particles_clear(p, p%n_owned + 1, p%n_owned + n_new)
-        do k = 1, n_new
-            c = p%n_owned + k
-            p%x(:, c) = xn(:, k)
-            p%v(:, c) = vn(:, k)
-            p%m(c) = mn(k)
-            p%rho(c) = rhon(k)
-            p%e(c) = en(k)
-            p%h(c) = h_new
-            p%x_old(:, c) = xn(:, k)
-            p%v_old(:, c) = vn(:, k)
-            p%rho_old(c) = rhon(k)
-            p%e_old(c) = en(k)
-            p%id(c) = idn(k)
-            p%kind(c) = KIND_FLUID
-            p%level(c) = 0
-            p%solid(c) = 0
-        end do
-        p%n_owned = p%n_owned + n_new
-        p%n_total = p%n_owned
+        ! the new fluid particles in p (each rank those of its part), the others after them
+        call spread_transfer(my_stat, message)
+        if (refused()) return
 
         deallocate(fluid)
         fluid = p%kind(1:p%n_owned) == KIND_FLUID
@@ -224,13 +210,16 @@ contains
 
     contains
 
-        !> Whether rank 0's work failed (collective): then stat and errmsg say so on every rank.
+        !> Whether some rank's work failed (collective): then stat and errmsg say so on every
+        !> rank, with the message of the lowest rank that failed.
         logical function refused()
+            integer :: reporter
             stat = agreed_status(env, my_stat)
             refused = stat /= 0
             if (.not. refused) return
+            reporter = int(-global_max(env, int(merge(-env%rank, -huge(0), my_stat /= 0), i8)))
+            call broadcast_text(env, message, reporter)
             errmsg = 'remesh: ' // message
-            if (env%rank /= 0) errmsg = 'remesh: refused on rank 0'
         end function refused
 
         !> Rank 0: xn and (coarsening) idn of the new set, positions relative to box_lo.
@@ -368,59 +357,206 @@ contains
             idn = new_ids(1:n_new)
         end subroutine fresh_ids
 
-        !> Rank 0: fields of the new particles from the old ones (periodic images included),
-        !> positions back in the box.
-        subroutine transfer(st, msg)
+        !> The fields of the new particles (module header, "Transfer"), collective. On return
+        !> p holds this rank's new fluid particles (absolute positions, in id order, ghosts
+        !> gone) and after them its particles that are not fluid, in their order. st /= 0 on
+        !> the ranks where the transfer failed; p then holds the same particles as before (the
+        !> fluid spread over the ranks as the transfer's decomposition has it).
+        subroutine spread_transfer(st, msg)
             integer, intent(out) :: st
             character(len=:), allocatable, intent(inout) :: msg
-            real(wp), allocatable :: xo_a(:, :), xn_a(:, :), mo_a(:), vo_a(:, :), rho_a(:), &
-                eo_a(:), m_a(:), v_a(:, :), r_a(:), e_a(:)
+            type(domain_t) :: parts
+            type(particles_t) :: old, others
+            type(halo_t) :: halo
+            real(wp), allocatable :: xo(:, :), xs(:, :), acc(:, :)
             integer, allocatable :: orig_o(:), orig_n(:)
-            integer :: no_a, nn_a, nmf, nvf, i
-            real(wp) :: h, mom_old(3), mom_new(3), mass_new, dv(3), scale
+            integer :: no, ns, i, nmf, nvf, own, k, added
+            logical :: ok
+            real(wp) :: h, reach, mom_new(3), dv(3), scale, mass_new
             character(len=200) :: text
+            st = 0
             text = ''
             h = max(dx, dx * remesh_spacing_factor(mode))
-            call with_mirrors_and_images(dim, box_lo, box_hi, periodic, solids, &
-                h * MIRROR_REACH, h * REACH, n, x, xo_a, orig_o, no_a)
-            call with_mirrors_and_images(dim, box_lo, box_hi, periodic, solids, &
-                h * MIRROR_REACH, h * REACH, n_new, xn, xn_a, orig_n, nn_a)
-            mo_a = m(orig_o); rho_a = rho(orig_o); eo_a = e(orig_o); vo_a = v(:, orig_o)
-            allocate(m_a(nn_a), v_a(3, nn_a), r_a(nn_a), e_a(nn_a))
-            call remesh_transfer(dim, h, no_a, xo_a, mo_a, vo_a, rho_a, eo_a, nn_a, xn_a, &
-                m_a, v_a, r_a, e_a, st, text, nmf, nvf)
-            if (st /= 0) then
+            ! the particles that are not fluid aside (with p's run-time fields), the old fluid
+            ! in an ORB decomposition of its own
+            call particles_init(others, max(count(.not. fluid), 1), dim)
+            if (allocated(p%extra)) then
+                do k = 1, size(p%extra)
+                    added = particles_add_field(others, trim(p%extra(k)%info%name), &
+                        p%extra(k)%info%width, p%extra(k)%info%flags)
+                end do
+            end if
+            call particles_append(others, p, pack([(i, i = 1, size(fluid))], .not. fluid))
+            call domain_create(parts, env, dim, box_lo, box_hi, periodic)
+            call old_fluid(old)
+            call domain_partition(parts, env, old%x, old%n_owned)
+            call migrate_particles(parts, env, old)
+            ! p: the new particles this rank owns there, then those within reach as ghosts
+            call scatter_new(parts)
+            reach = NEW_REACH * h
+            if (present(solids)) then
+                if (allocated(solids%list)) reach = NEW_REACH_SOLIDS * h
+            end if
+            call halo_setup(halo, parts, reach)
+            call halo_build(halo, parts, env, p)
+            ! positions relative to box_lo, the mirrors across the solids after them
+            no = old%n_owned
+            call relative_to(box_lo, old%x, no, xo, orig_o)
+            ns = p%n_total
+            call relative_to(box_lo, p%x, ns, xs, orig_n)
+            if (present(solids)) then
+                call with_mirrors(dim, solids, box_lo, h * MIRROR_REACH, xo, orig_o, no)
+                call with_mirrors(dim, solids, box_lo, h * MIRROR_REACH, xs, orig_n, ns)
+            end if
+            xo(dim + 1:, :) = 0.0_wp
+            xs(dim + 1:, :) = 0.0_wp
+            ! sums from the old particles this rank owns, the ghosts' columns to their owners
+            allocate(acc(transfer_rows(dim), max(ns, 1)))
+            call transfer_accumulate(dim, h, no, xo, old%m(orig_o(1:no)), &
+                old%v(:, orig_o(1:no)), old%rho(orig_o(1:no)), old%e(orig_o(1:no)), ns, xs, &
+                acc, st, text, nmf)
+            ! a failure anywhere stops every rank (the caller's refused() agrees on it); p is
+            ! then put back: this rank's old fluid in the transfer's decomposition, its others
+            ok = agreed_status(env, st) == 0
+            if (ok) then
+                call halo_reverse_sum(halo, env, p%n_owned, acc)
+                own = p%n_owned
+                p%n_ghost = 0
+                p%n_total = own
+                call transfer_finish(dim, own, acc, p%m, p%v, p%rho, p%e, st, text, nvf)
+                ok = agreed_status(env, st) == 0
+            end if
+            if (.not. ok) then
                 msg = trim(text)
+                p%n_owned = 0
+                p%n_ghost = 0
+                p%n_total = 0
+                call particles_append(p, old, [(i, i = 1, old%n_owned)])
+                call particles_append(p, others, [(i, i = 1, others%n_owned)])
                 return
             end if
-            report%n_mass_fallback = nmf
-            report%n_velocity_fallback = nvf
-            mn = m_a(1:n_new); rhon = r_a(1:n_new); en = e_a(1:n_new)
-            vn = v_a(:, 1:n_new)
-            if (present(solids) .and. n_new > 0) then
+            report%n_mass_fallback = int(global_sum(env, int(nmf, i8)))
+            report%n_velocity_fallback = int(global_sum(env, int(nvf, i8)))
+            mass_new = global_sum(env, sum(p%m(1:own)))
+            if (present(solids)) then
                 ! the mirrors' exchange is symmetric only for plane walls: restore the total
                 ! mass exactly, scaling the densities alike (volumes unchanged)
-                scale = sum(m(1:n)) / sum(mn)
-                mn = mn * scale
-                rhon = rhon * scale
+                scale = report%mass_before / mass_new
+                p%m(1:own) = p%m(1:own) * scale
+                p%rho(1:own) = p%rho(1:own) * scale
+                mass_new = global_sum(env, sum(p%m(1:own)))
             end if
-            vn(dim + 1:, :) = 0.0_wp
-            ! one uniform correction over the particles in the box: momentum as before
-            mom_old = 0.0_wp; mom_new = 0.0_wp
-            do i = 1, n
-                mom_old = mom_old + m(i) * v(:, i)
+            p%v(dim + 1:, 1:own) = 0.0_wp
+            ! one uniform correction over all new particles: momentum as before
+            mom_new = 0.0_wp
+            do i = 1, own
+                mom_new(1:dim) = mom_new(1:dim) + p%m(i) * p%v(1:dim, i)
             end do
-            do i = 1, n_new
-                mom_new = mom_new + mn(i) * vn(:, i)
-            end do
-            mass_new = sum(mn)
+            mom_new = global_sum(env, mom_new)
             dv = 0.0_wp
-            if (mass_new > 0.0_wp) dv(1:dim) = (mom_old(1:dim) - mom_new(1:dim)) / mass_new
-            do i = 1, n_new
-                vn(1:dim, i) = vn(1:dim, i) + dv(1:dim)
-                xn(1:dim, i) = xn(1:dim, i) + box_lo(1:dim)
+            if (mass_new > 0.0_wp) dv(1:dim) = (report%momentum_before(1:dim) - &
+                mom_new(1:dim)) / mass_new
+            do i = 1, own
+                p%v(1:dim, i) = p%v(1:dim, i) + dv(1:dim)
+                p%h(i) = h_new
+                p%x_old(:, i) = p%x(:, i)
+                p%v_old(:, i) = p%v(:, i)
+                p%rho_old(i) = p%rho(i)
+                p%e_old(i) = p%e(i)
             end do
-        end subroutine transfer
+            call particles_append(p, others, [(i, i = 1, others%n_owned)])
+            ! room for the ghosts of the new set too (as many per owned particle as before):
+            ! the caller's halo build would otherwise grow every field again, copying them all
+            call particles_reserve(p, int(real(p%n_owned, wp) * ghost_ratio))
+        end subroutine spread_transfer
+
+        !> A set of this rank's owned fluid particles of p (position, velocity, mass, density,
+        !> energy, id) for the transfer's decomposition.
+        subroutine old_fluid(q)
+            type(particles_t), intent(out) :: q
+            integer :: i, k
+            call particles_init(q, count(fluid), dim)
+            k = 0
+            do i = 1, p%n_owned
+                if (.not. fluid(i)) cycle
+                k = k + 1
+                q%x(:, k) = p%x(:, i)
+                q%v(:, k) = p%v(:, i)
+                q%m(k) = p%m(i)
+                q%rho(k) = p%rho(i)
+                q%e(k) = p%e(i)
+                q%id(k) = p%id(i)
+                q%kind(k) = KIND_FLUID
+                q%level(k) = 0
+                q%solid(k) = 0
+            end do
+            q%n_owned = k
+            q%n_total = k
+        end subroutine old_fluid
+
+        !> Rank 0 sends each new position (xn, relative to box_lo) and id (idn), in their
+        !> order, to the rank owning it in `parts`; p (emptied) takes this rank's, with
+        !> absolute positions, and room for their ghosts.
+        subroutine scatter_new(parts)
+            type(domain_t), intent(in) :: parts
+            integer, allocatable :: owner(:), counts(:), displs(:), fill(:), order(:)
+            real(wp), allocatable :: sx(:, :), rx(:, :)
+            integer(i8), allocatable :: sid(:), rid(:)
+            integer :: k, r, n_mine, ierr
+            allocate(counts(0:env%nranks - 1), displs(0:env%nranks - 1))
+            counts = 0
+            displs = 0
+            if (env%rank == 0) then
+                allocate(owner(n_new), order(n_new), fill(0:env%nranks - 1))
+                do k = 1, n_new
+                    owner(k) = domain_owner(parts, xn(:, k) + box_lo)
+                    counts(owner(k)) = counts(owner(k)) + 1
+                end do
+                do r = 1, env%nranks - 1
+                    displs(r) = displs(r - 1) + counts(r - 1)
+                end do
+                ! grouped by owner, in id order within each
+                fill = displs
+                do k = 1, n_new
+                    fill(owner(k)) = fill(owner(k)) + 1
+                    order(fill(owner(k))) = k
+                end do
+                allocate(sx(3, max(n_new, 1)), sid(max(n_new, 1)))
+                do k = 1, n_new
+                    sx(:, k) = xn(:, order(k))
+                    sid(k) = idn(order(k))
+                end do
+            else
+                allocate(sx(3, 1), sid(1))
+            end if
+            call MPI_Scatter(counts, 1, MPI_INTEGER, n_mine, 1, MPI_INTEGER, 0, env%comm, ierr)
+            call check_mpi(ierr, 'remesh scatter counts')
+            allocate(rx(3, max(n_mine, 1)), rid(max(n_mine, 1)))
+            call MPI_Scatterv(sx, 3 * counts, 3 * displs, mpi_wp, rx, 3 * n_mine, mpi_wp, 0, &
+                env%comm, ierr)
+            call check_mpi(ierr, 'remesh scatter positions')
+            call MPI_Scatterv(sid, counts, displs, mpi_i8, rid, n_mine, mpi_i8, 0, env%comm, &
+                ierr)
+            call check_mpi(ierr, 'remesh scatter ids')
+            ! room for the ghosts too, a band of the reach around the part (a guess; the halo
+            ! grows p if it needs more); slots that do not come zeroed from a growth are cleared
+            p%n_owned = 0
+            p%n_ghost = 0
+            p%n_total = 0
+            if (p%capacity >= n_mine + n_mine / 8 + 256) then
+                if (n_mine > 0) call particles_clear(p, 1, n_mine)
+            else
+                call particles_reserve(p, n_mine + n_mine / 8 + 256)
+            end if
+            do k = 1, n_mine
+                p%x(:, k) = rx(:, k) + box_lo
+                p%x(dim + 1:, k) = 0.0_wp
+                p%id(k) = rid(k)
+                p%kind(k) = KIND_FLUID
+            end do
+            p%n_owned = n_mine
+            p%n_total = n_mine
+        end subroutine scatter_new
 
         !> The box given to refine_positions / coarsen_select: the domain on periodic axes;
         !> on the others a length so much larger that their images never meet a particle.
@@ -435,35 +571,30 @@ contains
             end do
         end function algorithm_box
 
-        !> Rank 0 receives every rank's fluid particles (positions relative to box_lo, in
-        !> the box on periodic axes), in rank order.
-        subroutine gather_fluid(envg, q, sel, ntot, xg, vg, mg, rg, eg, idg)
+        !> Rank 0 receives every rank's fluid positions (relative to box_lo, in the box on
+        !> periodic axes) and ids, in rank order.
+        subroutine gather_positions(envg, q, sel, ntot, xg, idg)
             type(mpi_env_t), intent(in) :: envg
             type(particles_t), intent(in) :: q
             logical, intent(in) :: sel(:)
             integer, intent(out) :: ntot
-            real(wp), allocatable, intent(out) :: xg(:, :), vg(:, :), mg(:), rg(:), eg(:)
+            real(wp), allocatable, intent(out) :: xg(:, :)
             integer(i8), allocatable, intent(out) :: idg(:)
-            integer, parameter :: nr = 9
             integer :: nloc, ierr, r, a, j
             integer, allocatable :: counts(:), displs(:), idx(:)
-            real(wp), allocatable :: sbuf(:, :), rbuf(:, :)
+            real(wp), allocatable :: sbuf(:, :)
             integer(i8), allocatable :: sid(:)
             idx = pack([(j, j = 1, q%n_owned)], sel)
             nloc = size(idx)
-            allocate(sbuf(nr, max(nloc, 1)), sid(max(nloc, 1)))
+            allocate(sbuf(3, max(nloc, 1)), sid(max(nloc, 1)))
             do j = 1, nloc
-                sbuf(1:3, j) = q%x(:, idx(j)) - box_lo
+                sbuf(:, j) = q%x(:, idx(j)) - box_lo
                 do a = 1, dim
                     ! the particle's periodic image in [0, L)
                     if (periodic(a)) sbuf(a, j) = sbuf(a, j) - (box_hi(a) - box_lo(a)) * &
                         floor(sbuf(a, j) / (box_hi(a) - box_lo(a)))
                 end do
                 sbuf(dim + 1:3, j) = 0.0_wp
-                sbuf(4:6, j) = q%v(:, idx(j))
-                sbuf(7, j) = q%m(idx(j))
-                sbuf(8, j) = q%rho(idx(j))
-                sbuf(9, j) = q%e(idx(j))
                 sid(j) = q%id(idx(j))
             end do
             allocate(counts(envg%nranks), displs(envg%nranks))
@@ -475,20 +606,29 @@ contains
             do r = 2, envg%nranks
                 displs(r) = displs(r - 1) + counts(r - 1)
             end do
-            allocate(rbuf(nr, max(ntot, 1)), idg(max(ntot, 1)))
-            call MPI_Gatherv(sbuf, nr * nloc, mpi_wp, rbuf, nr * counts, nr * displs, mpi_wp, &
-                0, envg%comm, ierr)
-            call check_mpi(ierr, 'remesh gather fields')
+            allocate(xg(3, max(ntot, 1)), idg(max(ntot, 1)))
+            call MPI_Gatherv(sbuf, 3 * nloc, mpi_wp, xg, 3 * counts, 3 * displs, mpi_wp, 0, &
+                envg%comm, ierr)
+            call check_mpi(ierr, 'remesh gather positions')
             call MPI_Gatherv(sid, nloc, mpi_i8, idg, counts, displs, mpi_i8, 0, envg%comm, ierr)
             call check_mpi(ierr, 'remesh gather ids')
-            xg = rbuf(1:3, 1:ntot)
-            vg = rbuf(4:6, 1:ntot)
-            mg = rbuf(7, 1:ntot)
-            rg = rbuf(8, 1:ntot)
-            eg = rbuf(9, 1:ntot)
-            idg = idg(1:ntot)
-        end subroutine gather_fluid
+        end subroutine gather_positions
     end subroutine remesh_fluid
+
+    !> y(:, 1:n) = x(:, 1:n) - box_lo (at least one column), orig(k) = k: the start of a set
+    !> with_mirrors appends to.
+    subroutine relative_to(box_lo, x, n, y, orig)
+        real(wp), intent(in) :: box_lo(3), x(:, :)
+        integer, intent(in) :: n
+        real(wp), allocatable, intent(out) :: y(:, :)
+        integer, allocatable, intent(out) :: orig(:)
+        integer :: i
+        allocate(y(3, max(n, 1)), orig(max(n, 1)))
+        do i = 1, n
+            y(:, i) = x(:, i) - box_lo
+            orig(i) = i
+        end do
+    end subroutine relative_to
 
     !> y(:, 1:ny): the points of xs(:, 1:ns) (relative to box_lo) followed by their images
     !> on the periodic axes (any combination of shifts by whole box lengths) within `dist` of

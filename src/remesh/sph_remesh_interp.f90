@@ -44,18 +44,29 @@
 !>  - Errors: an old particle with no new particle within 4 h (its mass would be lost,
 !>    stat = 1), or a new particle with no old particle in its support (it would get no mass,
 !>    stat = 2). Without stat, error stop.
+!> Stages (for a caller that spreads the particles over ranks): every quantity above is a
+!> sum over old particles, accumulated per new particle in one column of transfer_rows(dim)
+!> values (transfer_accumulate); the fields follow from a column (transfer_finish). A rank
+!> can therefore accumulate from the old particles it owns into its new particles and their
+!> ghosts, add the ghosts' columns to their owners' (a reverse halo sum), finish its own new
+!> particles and correct momentum with global sums. remesh_transfer is the three in one.
 module sph_remesh_interp
     use sph_kinds, only: wp
     use sph_cell_list, only: cell_grid_t, bin_particles, cell_candidates
     use sph_interpolation_kernels, only: INTERP_M4, interp_support
     implicit none
     private
-    public :: remesh_transfer
+    public :: remesh_transfer, transfer_accumulate, transfer_finish, transfer_rows
+
+    !> The first rows of a column (transfer_accumulate): mass, m e and volume handed on, the
+    !> velocity interpolant's s0; then s1 (dim), va (dim), s2 (dim^2), vb (dim^2).
+    integer, parameter :: A_M = 1, A_E = 2, A_VOL = 3, A_S0 = 4, A_S1 = 5
 
 contains
 
     !> Hand the fields of the old particles on to the new positions (module header): masses,
-    !> energies and volumes conservatively, velocities by a corrected interpolant.
+    !> energies and volumes conservatively, velocities by a corrected interpolant; total
+    !> momentum kept by one uniform correction.
     subroutine remesh_transfer(dim, h, n_old, x_old, m_old, v_old, rho_old, e_old, &
             n_new, x_new, m_new, v_new, rho_new, e_new, stat, errmsg, n_mass_fallback, &
             n_velocity_fallback)
@@ -67,31 +78,82 @@ contains
         integer, intent(out), optional :: stat
         character(len=*), intent(out), optional :: errmsg
         integer, intent(out), optional :: n_mass_fallback, n_velocity_fallback
+        real(wp), allocatable :: acc(:, :)
+        real(wp) :: mom_old(3), mom_new(3), dv(3)
+        integer :: i, j, st, n_mfb, n_vfb
+        character(len=120) :: msg
+
+        allocate(acc(transfer_rows(dim), max(n_new, 1)))
+        call transfer_accumulate(dim, h, n_old, x_old, m_old, v_old, rho_old, e_old, n_new, &
+            x_new, acc, st, msg, n_mfb)
+        if (st == 0) call transfer_finish(dim, n_new, acc, m_new, v_new, rho_new, e_new, st, &
+            msg, n_vfb)
+        if (st /= 0) then
+            m_new(1:n_new) = 0.0_wp
+            if (present(errmsg)) errmsg = msg
+            if (present(stat)) then
+                stat = st
+                return
+            end if
+            error stop 'remesh_transfer: particles without partner within the kernel support'
+        end if
+        if (present(stat)) stat = 0
+        ! one uniform correction: total momentum as before
+        mom_old = 0.0_wp; mom_new = 0.0_wp
+        do j = 1, n_old
+            mom_old(1:dim) = mom_old(1:dim) + m_old(j) * v_old(1:dim, j)
+        end do
+        do i = 1, n_new
+            mom_new(1:dim) = mom_new(1:dim) + m_new(i) * v_new(1:dim, i)
+        end do
+        dv = (mom_old - mom_new) / sum(m_new(1:n_new))
+        do i = 1, n_new
+            v_new(1:dim, i) = v_new(1:dim, i) + dv(1:dim)
+        end do
+        if (present(n_mass_fallback)) n_mass_fallback = n_mfb
+        if (present(n_velocity_fallback)) n_velocity_fallback = n_vfb
+    end subroutine remesh_transfer
+
+    !> Values per new particle in transfer_accumulate's columns: 16 in 2D, 28 in 3D.
+    pure integer function transfer_rows(dim)
+        integer, intent(in) :: dim
+        transfer_rows = A_S1 + 2 * dim + 2 * dim * dim - 1
+    end function transfer_rows
+
+    !> The sums of the old particles x_old(:, 1:n_old) (each its mass, m e and volume handed on
+    !> with its own normalised, centroid-keeping weights; the velocity moments) added into
+    !> acc(:, 1:n_new), one column per new particle x_new(:, k) (zeroed first). n_mass_fallback:
+    !> old particles that fell back to lower order. stat 1: an old particle has no new
+    !> particle within 4 h.
+    subroutine transfer_accumulate(dim, h, n_old, x_old, m_old, v_old, rho_old, e_old, &
+            n_new, x_new, acc, stat, errmsg, n_mass_fallback)
+        integer, intent(in) :: dim, n_old, n_new
+        real(wp), intent(in) :: h
+        real(wp), intent(in) :: x_old(:, :), m_old(:), v_old(:, :), rho_old(:), e_old(:)
+        real(wp), intent(in) :: x_new(:, :)
+        real(wp), intent(out) :: acc(:, :)
+        integer, intent(out) :: stat
+        character(len=*), intent(out) :: errmsg
+        integer, intent(out) :: n_mass_fallback
         !> an isolated old particle's one pair: negligible in its target's velocity moments
         real(wp), parameter :: ISOLATED_WEIGHT = 1.0e-30_wp, ISOLATED_REACH = 4.0_wp
-        ! per new particle, packed in one column (a pair's updates touch four cache lines of
+        ! the columns (per new particle, packed: a pair's updates touch four cache lines of
         ! one column instead of eight arrays): mass, m e and volume handed on, the velocity
         ! interpolant's moments (s0, s1, s2) and the sums sum u v (va) and sum u d v^T (vb)
         ! that give the corrected interpolant in one pass
-        ! (the first five rows fixed, the others after them, dim or dim^2 long: 16 rows in 2D,
-        ! 28 in 3D, the memory a refine's 4 N new particles hold on rank 0)
-        integer, parameter :: A_M = 1, A_E = 2, A_VOL = 3, A_S0 = 4, A_S1 = 5
-        integer :: a_va, a_s2, a_vb, a_size
-        real(wp), allocatable :: acc(:, :)
+        integer :: a_va, a_s2, a_vb
         ! per old particle: the new particles in its cells, and its pairs (offset / h, base
         ! weight, new particle)
         real(wp), allocatable :: dl(:, :), wl(:), cw(:)
         integer, allocatable :: al(:), cand(:)
         type(cell_grid_t) :: grid
-        integer :: i, j, k, p, c, q, nloc, lost, empty, n_mfb, n_vfb, n_cand
-        real(wp) :: d(3), f, beta(3), gam(3), t0(3), t1(3, 3), mom_old(3), mom_new(3), &
-            mass_new, dv(3), u, vj, s0, s1(3), s2(3, 3), xj(3), inv_h
+        integer :: i, j, k, p, c, q, nloc, lost, n_cand
+        real(wp) :: d(3), f, beta(3), t0(3), t1(3, 3), u, vj, xj(3), inv_h
         logical :: ok
-        character(len=120) :: msg
 
-        if (present(stat)) stat = 0
-        m_new(1:n_new) = 0.0_wp; v_new(:, 1:n_new) = 0.0_wp
-        rho_new(1:n_new) = 0.0_wp; e_new(1:n_new) = 0.0_wp
+        stat = 0
+        errmsg = ''
+        acc(:, 1:n_new) = 0.0_wp
         ! old-new pairs: the new particles binned in cells of M4's support half-width 2 h,
         ! each old particle's candidates filtered by the weight itself (zero outside the
         ! cube), no pair list stored
@@ -100,11 +162,9 @@ contains
         a_va = A_S1 + dim
         a_s2 = a_va + dim
         a_vb = a_s2 + dim * dim
-        a_size = a_vb + dim * dim - 1
-        allocate(acc(a_size, n_new), source=0.0_wp)
         inv_h = 1.0_wp / h
         lost = 0
-        n_mfb = 0
+        n_mass_fallback = 0
         do j = 1, n_old
             xj = 0.0_wp
             xj(1:dim) = x_old(1:dim, j)
@@ -140,7 +200,7 @@ contains
                 dl(1:dim, 1) = (x_new(1:dim, al(1)) - x_old(1:dim, j)) / h
                 wl(1) = ISOLATED_WEIGHT
                 cw(1) = 1.0_wp
-                n_mfb = n_mfb + 1
+                n_mass_fallback = n_mass_fallback + 1
             else
                 ! first-order corrected weights: the centroid kept (module header)
                 t0 = 0.0_wp
@@ -159,7 +219,7 @@ contains
                     ok = all(cw(1:nloc) >= 0.0_wp) .and. sum(cw(1:nloc)) > 0.0_wp
                 end if
                 if (.not. ok) then
-                    n_mfb = n_mfb + 1
+                    n_mass_fallback = n_mass_fallback + 1
                     cw(1:nloc) = wl(1:nloc)
                 end if
                 cw(1:nloc) = cw(1:nloc) / sum(cw(1:nloc))
@@ -187,61 +247,10 @@ contains
             end do
         end do
         if (lost > 0) then
-            write(msg, '(a, i0, a)') 'remesh_transfer: ', lost, &
+            write(errmsg, '(a, i0, a)') 'remesh_transfer: ', lost, &
                 ' old particle(s) have no new particle within the support'
-            call fail(1)
-            return
+            stat = 1
         end if
-        m_new(1:n_new) = acc(A_M, 1:n_new)
-        empty = count(m_new(1:n_new) <= 0.0_wp .or. acc(A_VOL, 1:n_new) <= 0.0_wp)
-        if (empty > 0) then
-            write(msg, '(a, i0, a)') 'remesh_transfer: ', empty, &
-                ' new particle(s) receive no mass (no old particle within the support)'
-            call fail(2)
-            return
-        end if
-        e_new(1:n_new) = acc(A_E, 1:n_new) / m_new(1:n_new)
-        rho_new(1:n_new) = m_new(1:n_new) / acc(A_VOL, 1:n_new)
-
-        ! velocity: the first-order corrected interpolant,
-        ! v_a = sum_j u_aj (1 + gam . d_j) v_j / (s0 + gam . s1) = (va + vb gam) / (s0 + gam . s1)
-        n_vfb = 0
-        do i = 1, n_new
-            s2 = 0.0_wp
-            s2(1:dim, 1:dim) = reshape(acc(a_s2:a_s2 + dim * dim - 1, i), [dim, dim])
-            s1 = 0.0_wp
-            s1(1:dim) = acc(A_S1:A_S1 + dim - 1, i)
-            s0 = acc(A_S0, i)
-            call solve_small(dim, s2, -s1, gam, ok)
-            if (ok) ok = s0 + dot_product(gam(1:dim), s1(1:dim)) > 1.0e-12_wp * s0
-            if (.not. ok) then
-                n_vfb = n_vfb + 1
-                gam = 0.0_wp
-            end if
-            f = s0 + dot_product(gam(1:dim), s1(1:dim))
-            d = 0.0_wp
-            do c = 1, dim
-                q = a_vb + dim * (c - 1)
-                d(1:dim) = d(1:dim) + gam(c) * acc(q:q + dim - 1, i)
-            end do
-            v_new(1:dim, i) = (acc(a_va:a_va + dim - 1, i) + d(1:dim)) / f
-        end do
-
-        ! one uniform correction: total momentum as before
-        mom_old = 0.0_wp; mom_new = 0.0_wp
-        do j = 1, n_old
-            mom_old(1:dim) = mom_old(1:dim) + m_old(j) * v_old(1:dim, j)
-        end do
-        do i = 1, n_new
-            mom_new(1:dim) = mom_new(1:dim) + m_new(i) * v_new(1:dim, i)
-        end do
-        mass_new = sum(m_new(1:n_new))
-        dv = (mom_old - mom_new) / mass_new
-        do i = 1, n_new
-            v_new(1:dim, i) = v_new(1:dim, i) + dv(1:dim)
-        end do
-        if (present(n_mass_fallback)) n_mass_fallback = n_mfb
-        if (present(n_velocity_fallback)) n_velocity_fallback = n_vfb
 
     contains
 
@@ -270,18 +279,64 @@ contains
             end do
             found = best /= 0
         end subroutine nearest_new
+    end subroutine transfer_accumulate
 
-        subroutine fail(code)
-            integer, intent(in) :: code
-            m_new(1:n_new) = 0.0_wp
-            if (present(errmsg)) errmsg = msg
-            if (present(stat)) then
-                stat = code
-                return
+    !> Mass, energy, density and the corrected velocity interpolant of the new particles
+    !> 1..n from their columns acc(:, 1:n) (transfer_accumulate, every old particle's sums
+    !> in). n_velocity_fallback: new particles whose interpolant fell back to Shepard's.
+    !> stat 2: a new particle received no mass.
+    subroutine transfer_finish(dim, n, acc, m_new, v_new, rho_new, e_new, stat, errmsg, &
+            n_velocity_fallback)
+        integer, intent(in) :: dim, n
+        real(wp), intent(in) :: acc(:, :)
+        real(wp), intent(out) :: m_new(:), v_new(:, :), rho_new(:), e_new(:)
+        integer, intent(out) :: stat
+        character(len=*), intent(out) :: errmsg
+        integer, intent(out) :: n_velocity_fallback
+        integer :: a_va, a_s2, a_vb, i, c, q, empty
+        real(wp) :: s0, s1(3), s2(3, 3), gam(3), f, d(3)
+        logical :: ok
+
+        stat = 0
+        errmsg = ''
+        n_velocity_fallback = 0
+        a_va = A_S1 + dim
+        a_s2 = a_va + dim
+        a_vb = a_s2 + dim * dim
+        v_new(:, 1:n) = 0.0_wp
+        m_new(1:n) = acc(A_M, 1:n)
+        empty = count(m_new(1:n) <= 0.0_wp .or. acc(A_VOL, 1:n) <= 0.0_wp)
+        if (empty > 0) then
+            write(errmsg, '(a, i0, a)') 'remesh_transfer: ', empty, &
+                ' new particle(s) receive no mass (no old particle within the support)'
+            stat = 2
+            return
+        end if
+        e_new(1:n) = acc(A_E, 1:n) / m_new(1:n)
+        rho_new(1:n) = m_new(1:n) / acc(A_VOL, 1:n)
+        ! velocity: the first-order corrected interpolant,
+        ! v_a = sum_j u_aj (1 + gam . d_j) v_j / (s0 + gam . s1) = (va + vb gam) / (s0 + gam . s1)
+        do i = 1, n
+            s2 = 0.0_wp
+            s2(1:dim, 1:dim) = reshape(acc(a_s2:a_s2 + dim * dim - 1, i), [dim, dim])
+            s1 = 0.0_wp
+            s1(1:dim) = acc(A_S1:A_S1 + dim - 1, i)
+            s0 = acc(A_S0, i)
+            call solve_small(dim, s2, -s1, gam, ok)
+            if (ok) ok = s0 + dot_product(gam(1:dim), s1(1:dim)) > 1.0e-12_wp * s0
+            if (.not. ok) then
+                n_velocity_fallback = n_velocity_fallback + 1
+                gam = 0.0_wp
             end if
-            error stop 'remesh_transfer: particles without partner within the kernel support'
-        end subroutine fail
-    end subroutine remesh_transfer
+            f = s0 + dot_product(gam(1:dim), s1(1:dim))
+            d = 0.0_wp
+            do c = 1, dim
+                q = a_vb + dim * (c - 1)
+                d(1:dim) = d(1:dim) + gam(c) * acc(q:q + dim - 1, i)
+            end do
+            v_new(1:dim, i) = (acc(a_va:a_va + dim - 1, i) + d(1:dim)) / f
+        end do
+    end subroutine transfer_finish
 
     !> The cubic B-spline M4 (sph_interpolation_kernels' m4_bspline), here so that the
     !> transfer's pair loop inlines it: 2/3 - s^2 + |s|^3/2 (|s| < 1), (2 - |s|)^3/6 (< 2).
