@@ -562,6 +562,9 @@ def case_remesh_disorder(runner, args):
             for mode in ("refine", "coarsen"):
                 target = os.path.join(scratch, f"{label.replace(' ', '_').replace('/', '')}"
                                                f"_{t:g}_{mode}.h5")
+                # the remesh never replaces a file: this folder's result of a run before goes
+                if os.path.exists(target):
+                    os.remove(target)
                 cmd = ["mpirun", "-np", str(runner.nranks), runner.binary, "--remesh", mode,
                        snap, target]
                 status = subprocess.call(cmd, stdout=subprocess.DEVNULL,

@@ -179,10 +179,24 @@ contains
         real(wp) :: time, dx_file
         integer, allocatable :: keep(:)
         character(len=32) :: number
+        logical :: out_exists
 
         mode = remesh_mode_code(mode_name)
         if (mode <= REMESH_NONE) call fatal_collective('remesh', "unknown mode '" // &
             mode_name // "' (refine, coarsen or same)")
+        ! OUT is always a new file: a remesh never replaces one (IN itself, or a checkpoint
+        ! the user still needs); rank 0 looks, every rank stops alike
+        out_exists = .false.
+        if (env%rank == 0) inquire(file=out_path, exist=out_exists)
+        if (global_max(env, merge(1_i8, 0_i8, out_exists)) > 0) then
+            if (out_path == in_path) then
+                call fatal_collective('remesh', "OUT '" // out_path // "' is IN: the " // &
+                    'remeshed checkpoint is written to a new file; give OUT another name')
+            end if
+            call fatal_collective('remesh', "OUT '" // out_path // "' exists: the " // &
+                'remeshed checkpoint is written to a new file and never replaces one; ' // &
+                'give OUT another name or remove that file')
+        end if
         call read_snapshot_header(env, in_path, time, step, dimension, n_rows, input_text, &
             stat, errmsg)
         if (stat /= 0) call fatal_collective('remesh', errmsg)

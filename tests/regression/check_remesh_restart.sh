@@ -18,6 +18,19 @@ run "$np" --remesh refine "$checkpoint" refined.h5 > remesh.log 2>&1 || \
     fail "--remesh refine failed:" remesh.log
 run 1 --remesh refine "$checkpoint" refined_1.h5 > remesh_1.log 2>&1 || \
     fail "--remesh refine on 1 rank failed:" remesh_1.log
+# OUT is always a new file: refining into an existing one (here IN itself, then the result
+# of the first remesh) is refused and leaves the file as it was
+cp refined.h5 refined_copy.h5
+if run 1 --remesh refine refined.h5 refined.h5 > same.log 2>&1; then
+    fail "a remesh onto its own input was accepted:" same.log
+fi
+grep -q "OUT 'refined.h5' is IN" same.log || fail "no message for OUT = IN:" same.log
+if run 1 --remesh refine "$checkpoint" refined.h5 > exists.log 2>&1; then
+    fail "a remesh onto an existing file was accepted:" exists.log
+fi
+grep -q "OUT 'refined.h5' exists: .* never replaces one" exists.log || \
+    fail "no message for an existing OUT:" exists.log
+cmp -s refined.h5 refined_copy.h5 || fail "a refused remesh changed refined.h5"
 # the new particles (positions, ids, kinds) bit for bit; the fields handed on by each rank
 # for its part to round-off (sums in another order); pressure follows from the density
 "$python" "$comparer" refined.h5 refined_1.h5 --ignore rank mass density pressure velocity \
