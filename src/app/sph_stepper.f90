@@ -40,6 +40,7 @@ module sph_stepper
     use sph_checkpoint, only: read_checkpoint, find_latest_checkpoint
     use sph_version, only: code_version
     use sph_zones, only: zones_t
+    use sph_level_balance, only: real_fluid_mass, scale_masses
     use sph_step_timers, only: step_timers_t, timers_enter, timers_leave, TIMER_SEARCH, &
         TIMER_HALO, TIMER_INTEGRATION, TIMER_OTHER
     use sph_transition_driver, only: level_stats_t, create_level_particles, &
@@ -99,6 +100,19 @@ module sph_stepper
         !> the virtual particles' refresh candidates; invalid after every rebuild
         type(refresh_plan_t) :: refresh_plan
         real(wp), allocatable :: first_level_mass(:)   !< real mass per level at the start
+        !> &refinement conserve (sph_level_balance): the total real mass the transition
+        !> updates hold (the fluid's at set-up, or the checkpoint's), each level's last
+        !> virtual push (xyz) and mass of real particles next to virtual ones, which
+        !> particles those are (marked for each neighbour list), and for the log the mass
+        !> the rescales put back and the push removed (summed over the rate evaluations,
+        !> and their count) since its last line
+        real(wp) :: reference_mass = 0.0_wp
+        real(wp), allocatable :: level_push(:, :), level_push_mass(:)
+        logical, allocatable :: near_virtual(:)
+        integer :: near_virtual_list = -1   !< the neighbour list's generation they are of
+        real(wp) :: mass_restored = 0.0_wp
+        real(wp) :: push_removed(3) = 0.0_wp
+        integer(i8) :: push_evaluations = 0
         !> wall seconds spent in the transition zones' updates (with their rebuild) so far
         real(wp) :: transition_seconds = 0.0_wp
         logical :: zones_due = .false.   !< the zones are made anew after this step
@@ -313,6 +327,7 @@ contains
         integer :: stat
         integer, allocatable :: order(:)
         character(len=:), allocatable :: errmsg
+        character(len=160) :: line
         call setup_common(sim, env, cfg)
         if (len_trim(cfg%domain%initial_particles) > 0) then
             ! rows shared evenly over the ranks, then partitioned as on a restart
@@ -322,7 +337,18 @@ contains
             call log_info('particles: read from ' // trim(cfg%domain%initial_particles))
         else if (multires(sim)) then
             call create_level_particles(env, cfg, sim%level_phys, sim%solids, sim%domain, &
-                sim%zones, sim%p)
+                sim%zones, sim%p, sim%reference_mass)
+            if (cfg%refinement%conserve) then
+                ! the fluid's mass as the uniform lattice holds it (sph_level_balance)
+                call hold_real_mass(sim, env)
+                write(line, '(a,es16.9,a,f10.7,a)') 'set-up: real fluid mass ', &
+                    sim%reference_mass, ' kg, the fluid''s (the levels'' lattices held ', &
+                    1.0_wp - sim%mass_restored / sim%reference_mass, ' of it)'
+                call log_info(trim(line))
+                sim%mass_restored = 0.0_wp
+            else
+                sim%reference_mass = 0.0_wp
+            end if
         else
             call create_lattice_particles(cfg, sim%phys, sim%solids, sim%domain, sim%p)
         end if
@@ -354,6 +380,12 @@ contains
         allocate(momentum(3, 0:sim%zones%n_levels - 1))
         call level_totals(env, sim%p, sim%zones%n_levels, n_real, n_virtual, &
             sim%first_level_mass, momentum)
+        ! a restart has them from its checkpoint (simulation_restart)
+        if (sim%reference_mass <= 0.0_wp) sim%reference_mass = sum(sim%first_level_mass)
+        if (.not. allocated(sim%level_push)) then
+            allocate(sim%level_push(3, 0:sim%zones%n_levels - 1), source=0.0_wp)
+            allocate(sim%level_push_mass(0:sim%zones%n_levels - 1), source=0.0_wp)
+        end if
     end subroutine start_levels
 
     !> Continue from a checkpoint file, or from the newest complete one in a directory.
@@ -368,6 +400,8 @@ contains
         logical :: same_layout, is_directory
         character(len=256) :: line
         real(wp) :: stored_dx
+        real(wp), allocatable :: balance(:)
+        integer :: n
 
         call setup_common(sim, env, cfg)
         inquire(file=trim(from) // '/.', exist=is_directory)
@@ -380,8 +414,17 @@ contains
             path = from
         end if
         call read_checkpoint(env, path, sim%p, sim%domain, sim%time, sim%step, stored_input, &
-            index_text, same_layout, stat, errmsg, stored_dx)
+            index_text, same_layout, stat, errmsg, stored_dx, balance)
         if (stat /= 0) call fatal_collective('restart', errmsg)
+        ! the levels' balance as the checkpointed run had it (the reference mass, and for
+        ! sub-cycled levels the pushes of the levels not evaluated at the next step)
+        n = sim%zones%n_levels
+        if (multires(sim) .and. size(balance) == 1 + 4 * n) then
+            sim%reference_mass = balance(1)
+            allocate(sim%level_push(3, 0:n - 1), sim%level_push_mass(0:n - 1))
+            sim%level_push(:, :) = reshape(balance(2:1 + 3 * n), [3, n])
+            sim%level_push_mass(:) = balance(2 + 3 * n:)
+        end if
         sim%rates_stale = .not. verlet_input(stored_input)
         ! a remeshed (refined or coarsened) checkpoint holds particles of another spacing:
         ! the input must say so (kernel, masses of new walls, time step follow from dx)
@@ -900,6 +943,7 @@ contains
         if (sim%subcycling) call refresh_ghosts(sim, env, moved_fields(sim))
         call update_transition_zones_of(env, sim%zones, sim%level_phys, sim%solids, sim%domain, &
             sim%cfg%domain%box_lo, sim%cfg%domain%box_hi, sim%p, sim%next_id, sim%level_stats)
+        if (sim%cfg%refinement%conserve) call hold_real_mass(sim, env)
         call simulation_prepare_neighbours(sim, env)
         ! the new virtuals' masses from the volumes their level leaves them, then the ghosts'
         call set_virtual_masses(sim%zones, sim%level_phys, sim%p, sim%nl)
@@ -910,6 +954,18 @@ contains
         sim%transition_seconds = sim%transition_seconds + (MPI_Wtime() - start)
         call timers_leave(sim%timers, previous)
     end subroutine update_transition_zones
+
+    !> &refinement conserve: the masses of the real fluid and the walls scaled by one factor
+    !> that brings the real fluid back to the reference total (sph_level_balance).
+    subroutine hold_real_mass(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        real(wp) :: mass
+        mass = global_sum(env, real_fluid_mass(sim%p))
+        if (mass <= 0.0_wp) return
+        call scale_masses(sim%p, sim%reference_mass / mass)
+        sim%mass_restored = sim%mass_restored + (sim%reference_mass - mass)
+    end subroutine hold_real_mass
 
     !> Stop collectively when the run has become unhealthy (sph_health): non-finite values, a
     !> fluid particle inside a solid, a density outside the band, a collapsed time step. The

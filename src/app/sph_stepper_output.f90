@@ -22,9 +22,16 @@ contains
         call synchronise(sim, env)
         path = checkpoint_filename(trim(sim%cfg%output%output_dir), trim(sim%cfg%run%case_name), &
             sim%step)
-        call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, &
-            sim%cfg%domain%dimension, &
-            code_version, sim%input_text, sim%snapshot_index, stat, errmsg, sim%cfg%domain%dx)
+        if (multires(sim) .and. allocated(sim%level_push)) then
+            call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, &
+                sim%cfg%domain%dimension, code_version, sim%input_text, sim%snapshot_index, &
+                stat, errmsg, sim%cfg%domain%dx, [sim%reference_mass, &
+                reshape(sim%level_push, [size(sim%level_push)]), sim%level_push_mass])
+        else
+            call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, &
+                sim%cfg%domain%dimension, code_version, sim%input_text, sim%snapshot_index, &
+                stat, errmsg, sim%cfg%domain%dx)
+        end if
         if (stat /= 0) call fatal_collective('checkpoint', errmsg)
         if (all(sim%checkpoints /= path)) &
             sim%checkpoints = [character(len=512) :: sim%checkpoints, path]
@@ -202,6 +209,20 @@ contains
             global_sum(env, sim%level_stats%clipped), ', virtuals without sources ', &
             global_sum(env, sim%level_stats%empty)
         call log_info(trim(line))
+        if (sim%cfg%refinement%conserve) then
+            ! the corrections of &refinement conserve: what the conversions' imbalance was,
+            ! and the mean virtual push on the real fluid against the body force on it
+            write(line, '(a,es11.3,a,3es11.3,a,es10.3,a)') '  conserve: mass put back ', &
+                sim%mass_restored, ' kg; virtual push removed', sim%push_removed / &
+                real(max(sim%push_evaluations, 1_i8), wp), ' N (mean; ', &
+                norm2(sim%push_removed) / real(max(sim%push_evaluations, 1_i8), wp) / &
+                max(norm2(sim%phys%body_force) * sim%reference_mass, tiny(1.0_wp)), &
+                ' of the body force)'
+            call log_info(trim(line))
+            sim%mass_restored = 0.0_wp
+            sim%push_removed = 0.0_wp
+            sim%push_evaluations = 0
+        end if
         sim%level_stats = level_stats_t()
     contains
         !> The relative change of a real mass from its start, or n/a for a level that started

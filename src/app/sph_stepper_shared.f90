@@ -19,6 +19,8 @@ submodule (sph_stepper) sph_stepper_shared
     use sph_timestep, only: timestep_limits, level_substeps
     use sph_reference, only: reference_from_config
     use sph_zones, only: zones_create
+    use sph_level_balance, only: PUSH_SUMS, mark_near_virtual, level_push_sums, &
+        remove_virtual_push
     use sph_step_timers, only: TIMER_RATES, TIMER_IDLE
     implicit none
 
@@ -180,8 +182,10 @@ contains
         type(mpi_env_t), intent(in) :: env
         logical, intent(in), optional :: levels(0:)
         logical :: active(0:sim%zones%n_levels - 1)
+        real(wp) :: solid_force(3, 0:sim%zones%n_levels - 1)
         integer :: lv
         active = .true.
+        solid_force = 0.0_wp
         if (present(levels)) active = levels
         if (sim%phys%density_method == DENSITY_SUMMATION) then
             do lv = 0, sim%zones%n_levels - 1
@@ -210,19 +214,80 @@ contains
         if (.not. sim%subcycling) then
             sim%wall_forces = 0.0_wp
             do lv = 0, sim%zones%n_levels - 1
+                ! each level's force on the solids, for the balance below
+                solid_force(:, lv) = -solid_total(sim%wall_forces)
                 call compute_rates(sim%level_phys(lv), sim%p, sim%nl, sim%solids, &
                     sim%wall_forces, lv)
+                solid_force(:, lv) = solid_force(:, lv) + solid_total(sim%wall_forces)
             end do
-            return
+        else
+            do lv = 0, sim%zones%n_levels - 1
+                if (.not. active(lv)) cycle
+                sim%level_wall_forces(:, :, :, lv) = 0.0_wp
+                call compute_rates(sim%level_phys(lv), sim%p, sim%nl, sim%solids, &
+                    sim%level_wall_forces(:, :, :, lv), lv)
+                solid_force(:, lv) = solid_total(sim%level_wall_forces(:, :, :, lv))
+            end do
+            sim%wall_forces = sum(sim%level_wall_forces, dim=4)
         end if
-        do lv = 0, sim%zones%n_levels - 1
-            if (.not. active(lv)) cycle
-            sim%level_wall_forces(:, :, :, lv) = 0.0_wp
-            call compute_rates(sim%level_phys(lv), sim%p, sim%nl, sim%solids, &
-                sim%level_wall_forces(:, :, :, lv), lv)
-        end do
-        sim%wall_forces = sum(sim%level_wall_forces, dim=4)
+        if (sim%cfg%refinement%conserve) call balance_virtual_push(sim, env, active, solid_force)
+    contains
+        !> The force on all solids (pressure and viscous parts, every solid) of wall_forces.
+        function solid_total(forces) result(total)
+            real(wp), intent(in) :: forces(:, :, :)
+            real(wp) :: total(3)
+            integer :: a
+            do a = 1, 3
+                total(a) = sum(forces(a, :, :))
+            end do
+        end function solid_total
     end subroutine evaluate_level_rates
+
+    !> &refinement conserve, after the rates of the `active` levels (sph_level_balance): each
+    !> such level's virtual push V = sum m dv/dt - F sum m + D over its real fluid (D its
+    !> force on the solids, this rank's part in solid_force), then the levels' pushes
+    !> together (the latest of the levels not evaluated now: sub-cycling) removed as one
+    !> acceleration from the real particles of the active levels next to virtual ones, so
+    !> that over a cycle every level's share of it goes (collective).
+    subroutine balance_virtual_push(sim, env, active, solid_force)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        logical, intent(in) :: active(0:)
+        real(wp), intent(in) :: solid_force(:, 0:)
+        real(wp) :: sums(PUSH_SUMS + 3, 0:sim%zones%n_levels - 1), push(3), near_mass
+        integer :: lv, n
+        n = sim%zones%n_levels
+        ! the particles next to virtual ones, marked again for each new neighbour list
+        if (sim%near_virtual_list /= sim%nl%generation) then
+            if (allocated(sim%near_virtual)) deallocate(sim%near_virtual)
+            allocate(sim%near_virtual(max(sim%p%n_owned, 1)))
+            call mark_near_virtual(sim%p, sim%nl, sim%level_phys(:)%kernel%support, &
+                sim%near_virtual)
+            sim%near_virtual_list = sim%nl%generation
+        end if
+        sums = 0.0_wp
+        do lv = 0, n - 1
+            if (.not. active(lv)) cycle
+            call level_push_sums(sim%p, lv, sim%near_virtual, sums(1:PUSH_SUMS, lv))
+            sums(PUSH_SUMS + 1:, lv) = solid_force(:, lv)
+        end do
+        sums = reshape(global_sum(env, reshape(sums, [size(sums)])), shape(sums))
+        do lv = 0, n - 1
+            if (.not. active(lv)) cycle
+            sim%level_push(:, lv) = sums(1:3, lv) - sim%level_phys(lv)%body_force * &
+                sums(4, lv) + sums(PUSH_SUMS + 1:, lv)
+            sim%level_push_mass(lv) = sums(5, lv)
+        end do
+        push = sum(sim%level_push, dim=2)
+        near_mass = sum(sim%level_push_mass)
+        if (near_mass <= 0.0_wp) return
+        do lv = 0, n - 1
+            if (active(lv)) call remove_virtual_push(sim%p, lv, sim%near_virtual, &
+                push / near_mass)
+        end do
+        sim%push_removed = sim%push_removed + push
+        sim%push_evaluations = sim%push_evaluations + 1
+    end subroutine balance_virtual_push
 
     module procedure planned_substeps
         real(wp) :: limit(0:sim%zones%n_levels - 1)

@@ -193,7 +193,8 @@ contains
     !> (sph_initial) keeps its fluid sites in the level's region (real) and transition zone
     !> (virtual), and its wall sites within reach of those. Real ids are unique over the
     !> levels: each level's lattice ids are offset by the largest id of the levels before.
-    subroutine create_level_particles(env, cfg, level_phys, solids, domain, zones, p)
+    subroutine create_level_particles(env, cfg, level_phys, solids, domain, zones, p, &
+            fluid_mass_total)
         type(mpi_env_t), intent(in) :: env
         type(config_t), intent(in) :: cfg
         type(physics_t), intent(in) :: level_phys(0:)
@@ -201,6 +202,9 @@ contains
         type(domain_t), intent(in) :: domain
         type(zones_t), intent(in) :: zones
         type(particles_t), intent(inout) :: p
+        !> the mass of the fluid of the whole domain at level 0's spacing: what the uniform
+        !> run's lattice holds (rho0 times the fluid volume with bodies)
+        real(wp), intent(out), optional :: fluid_mass_total
         type(config_t) :: level_cfg
         type(particles_t) :: lattice
         type(level_sites_t) :: sites
@@ -234,8 +238,13 @@ contains
             end if
             ! only the sites the level keeps: the whole lattice of a fine level would be the
             ! memory of the uniformly fine run
-            call create_lattice_particles(level_cfg, level_phys(lv), solids, domain, lattice, &
-                filter=sites)
+            if (lv == 0 .and. present(fluid_mass_total)) then
+                call create_lattice_particles(level_cfg, level_phys(lv), solids, domain, &
+                    lattice, filter=sites, fluid_mass_total=fluid_mass_total)
+            else
+                call create_lattice_particles(level_cfg, level_phys(lv), solids, domain, &
+                    lattice, filter=sites)
+            end if
             level_max = global_max_id(env, lattice%id, lattice%n_owned)
             ! the fluid outside the level's region lies in its transition zone: virtual
             do k = 1, lattice%n_owned

@@ -40,7 +40,8 @@ contains
 
     !> The initial particles: this rank's share of the fluid lattice (bodies and walls left
     !> out) and the wall particles of every solid, with masses rho0 dx^dim and ids by site.
-    subroutine create_lattice_particles(cfg, phys, solids, domain, p, walls_only, filter)
+    subroutine create_lattice_particles(cfg, phys, solids, domain, p, walls_only, filter, &
+            fluid_mass_total)
         type(config_t), intent(in) :: cfg
         type(physics_t), intent(in) :: phys
         type(solids_t), intent(in) :: solids
@@ -50,6 +51,9 @@ contains
         logical, intent(in), optional :: walls_only
         !> only the sites it keeps (ids as in the full lattice)
         class(site_filter_t), intent(in), optional :: filter
+        !> the mass of the whole lattice's fluid, every rank's (rho0 times the fluid volume
+        !> with bodies, rho0 dx^dim per site without)
+        real(wp), intent(out), optional :: fluid_mass_total
         integer :: n_inside(3), first(3), last(3), idx(3), i, j, k, solid, layers, axis
         integer(i8) :: n_fluid_total, n_ext(3), linear
         real(wp) :: xi(3), xf(3), normal(3), distance, mass, fluid_mass
@@ -68,6 +72,8 @@ contains
         if (present(walls_only)) make_fluid = .not. walls_only
         if (make_fluid .and. has_bodies()) fluid_mass = cfg%fluid%rho0 * fluid_volume() / &
             real(max(1_i8, count_fluid_sites()), wp)
+        if (present(fluid_mass_total)) fluid_mass_total = fluid_mass * &
+            real(count_fluid_sites(), wp)
         ! fluid
         do k = 1, merge(n_inside(3), 0, make_fluid)
             do j = 1, n_inside(2)

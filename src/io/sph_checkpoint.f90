@@ -40,7 +40,7 @@ contains
     !> state (after a refine or coarsen it differs from the input's &domain dx, which a
     !> restart checks, see read_checkpoint).
     subroutine write_checkpoint(env, p, domain, path, time, step, dimension, code_version, &
-                                input_text, snapshot_index, stat, errmsg, dx)
+                                input_text, snapshot_index, stat, errmsg, dx, balance)
         type(mpi_env_t), intent(in) :: env
         type(particles_t), intent(inout) :: p
         type(domain_t), intent(in) :: domain
@@ -51,6 +51,9 @@ contains
         integer, intent(out) :: stat
         character(len=:), allocatable, intent(out) :: errmsg
         real(wp), intent(in), optional :: dx
+        !> a multi-resolution run's balance of its levels (sph_stepper: the reference mass
+        !> and each level's last virtual push), stored as 'checkpoint/level_balance'
+        real(wp), intent(in), optional :: balance(:)
         type(h5_file_t) :: file
         integer :: n, n_tree, k
         integer(i8) :: my_rows(1), offset, total
@@ -91,6 +94,8 @@ contains
         call h5_write_rows(env, file, 'checkpoint/orb_right', tree, n_tree)
         tree(1:domain%n_nodes) = int(domain%node_rank(1:domain%n_nodes), i4)
         call h5_write_rows(env, file, 'checkpoint/orb_rank', tree, n_tree)
+        if (present(balance)) call h5_write_rows(env, file, 'checkpoint/level_balance', &
+            balance, merge(size(balance), 0, env%rank == 0))
         call snapshot_end(env, path, file, stat, errmsg)
     end subroutine write_checkpoint
 
@@ -99,7 +104,7 @@ contains
     !> otherwise the caller must partition and migrate. Refuses incomplete or foreign files.
     !> dx: the particle spacing stored by write_checkpoint, 0 when the file has none.
     subroutine read_checkpoint(env, path, p, domain, time, step, input_text, snapshot_index, &
-                               same_layout, stat, errmsg, dx)
+                               same_layout, stat, errmsg, dx, balance)
         type(mpi_env_t), intent(in) :: env
         character(len=*), intent(in) :: path
         type(particles_t), intent(inout) :: p
@@ -111,6 +116,8 @@ contains
         integer, intent(out) :: stat
         character(len=:), allocatable, intent(out) :: errmsg
         real(wp), intent(out), optional :: dx
+        !> what write_checkpoint stored as `balance`; empty when the file holds none
+        real(wp), allocatable, intent(out), optional :: balance(:)
         type(h5_file_t) :: file
         integer :: dimension, n, n_tree, dx_stat
         real(wp) :: stored_dx
@@ -146,6 +153,11 @@ contains
                 call h5_read_attribute(file, 'dx', stored_dx, dx_stat)
                 if (dx_stat == 0) dx = stored_dx
             end if
+        end if
+        if (present(balance)) then
+            n = int(max(h5_dataset_rows(file, 'checkpoint/level_balance'), 0_i8))
+            allocate(balance(n))
+            if (n > 0) call h5_read_rows(file, 'checkpoint/level_balance', balance, n, 0_i8)
         end if
         call h5_read_attribute(file, 'nranks', nranks_file, stat)
         same_layout = nranks_file == env%nranks .and. &

@@ -40,6 +40,9 @@ module sph_refinement_input
         !> +- dx/4 per coarse particle; coarse ones from the fine particles of lattice parity
         !> 0) or 'remesh' (sph_refine's construction and sph_coarsen's selection)
         character(len=8) :: virtual_rule = 'split'
+        !> hold the real fluid's total mass and momentum balance over the levels
+        !> (sph_level_balance)
+        logical :: conserve = .true.
         real(wp) :: width = 0.0_wp              !< m, resolved (set by check_refinement)
     end type refinement_input_t
 
@@ -69,6 +72,10 @@ contains
             doc='how virtual particles are made from the other level: split (each coarse ' // &
             'particle into 2^dim at +-dx/4 per axis, the fine ones of lattice parity 0 ' // &
             'into coarse ones; exact counts and masses) or remesh (the remeshing rules)')
+        call grp%get_logical('conserve', ref%conserve, .true., &
+            doc='hold the real fluid''s total mass (one rescale after each transition ' // &
+            'update) and momentum balance (the virtual particles'' net push removed from ' // &
+            'the real particles next to them); .false. leaves both to the conversions')
         if (iand(ref%max_subcycles, ref%max_subcycles - 1) /= 0) call grp%error( &
             'max_subcycles', int_text(int(ref%max_subcycles, i8)) // ' is not a power of 2: ' // &
             'use 1, 2, 4, 8, ... up to ' // int_text(int(MAX_SUBCYCLES, i8)))

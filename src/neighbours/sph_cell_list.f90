@@ -28,6 +28,9 @@ module sph_cell_list
 
     !> Compressed rows: the neighbours of i are index(start(i) : start(i+1)-1).
     type :: neighbour_list_t
+        !> a number no other build of any list has had: what is derived from a list (the
+        !> multi-resolution balance's marks) is kept while its generation stays the same
+        integer :: generation = 0
         integer :: n_query = 0
         integer :: n_pairs = 0
         integer, allocatable :: start(:)
@@ -36,7 +39,16 @@ module sph_cell_list
         type(cell_grid_t), allocatable :: grids(:)
     end type neighbour_list_t
 
+    integer, save :: list_builds = 0   !< builds so far, for neighbour_list_t%generation
+
 contains
+
+    !> A new generation for list nl, which has just been (re)built.
+    subroutine new_generation(nl)
+        type(neighbour_list_t), intent(inout) :: nl
+        list_builds = list_builds + 1
+        nl%generation = list_builds
+    end subroutine new_generation
 
     !> Neighbours within `radius` of the first n_query particles among the first n_total.
     !> Each query scans its 3^dim cells row by row: the cells of a row are consecutive in the
@@ -106,6 +118,7 @@ contains
         end do
         nl%start(n_query + 1) = pairs + 1
         nl%n_pairs = pairs
+        call new_generation(nl)
     end subroutine build_neighbour_list
 
     !> Neighbours of query points among a separate set of candidates (remeshing's transfers:
@@ -152,6 +165,7 @@ contains
         end associate
         nl%start(n_query + 1) = pairs + 1
         nl%n_pairs = pairs
+        call new_generation(nl)
     end subroutine build_cross_list
 
     !> cand(1:n_cand): the binned points in the 3^dim cells around xi, in the order of
@@ -244,8 +258,9 @@ contains
     end function projected_pairs
 
     !> Stable counting sort of particles into cells of at least `cell_size` covering their
-    !> bounding box (also for cell_candidates). The grid's arrays are reused when they are large enough. With members,
-    !> only the particles members(1:n) are binned (sorted holds their indices into x).
+    !> bounding box (also for cell_candidates). The grid's arrays are reused when they are
+    !> large enough. With members, only the particles members(1:n) are binned (sorted holds
+    !> their indices into x).
     subroutine bin_particles(x, n, dim, cell_size, grid, members)
         real(wp), intent(in) :: x(:, :)
         integer, intent(in) :: n, dim
@@ -385,5 +400,6 @@ contains
         nl%start(n_query + 1) = pairs + 1
         nl%n_query = n_query
         nl%n_pairs = pairs
+        call new_generation(nl)
     end subroutine brute_force_neighbours
 end module sph_cell_list
