@@ -514,6 +514,53 @@ def case_cylinder_remesh(runner, args):
     return [block]
 
 
+def window_drags(out, case, windows):
+    """Mean drag (x) per time window from <case>_forces.csv: the rows' step means (Fx_mean),
+    weighted by the time each row covers."""
+    import csv
+    with open(os.path.join(out, f"{case}_forces.csv")) as f:
+        rows = list(csv.DictReader(f))
+    t = np.array([float(r["time"]) for r in rows])
+    fx = np.array([float(r["Fx_mean"]) for r in rows])
+    start = np.concatenate([[0.0], t[:-1]])
+    means = []
+    for lo, hi in windows:
+        inside = (start >= lo - 1.0) & (t <= hi + 1.0)
+        means.append((fx[inside] * (t - start)[inside]).sum() / (t - start)[inside].sum())
+    return means
+
+
+def case_cylinder_multires(runner, args):
+    """Morris' cylinder with L/50 particles within 12 mm of its surface and L/25 further out
+    (input/cylinder_multires.nml) against the uniformly fine L/50 run: the drag per window
+    within 2 % once developed (from 3000 s) and the real fluid mass within 0.1 % (issue 11)."""
+    block = Block("cylinder_multires")
+    plain = runner.run("cylinder_L50", "cylinder.nml", {"domain": {"dx": 2.0e-3}}, nranks=1)
+    multi = runner.run("cylinder_multires", "cylinder_multires.nml", {})
+    if plain is None or multi is None:
+        block.failed.append("cylinder_multires: a run failed")
+        return [block]
+    windows = ((1500.0, 3000.0), (3000.0, 4500.0), (4500.0, 6000.0), (3000.0, 6000.0))
+    uniform = window_drags(plain, "cylinder", windows)
+    multires = window_drags(multi, "cylinder_multires", windows)
+    block.lines += ["| window [s] | drag, L/50 [N/m] | drag, L/25 + L/50 ring [N/m] | "
+                    "difference | limit | held |", "|---|---|---|---|---|---|"]
+    for (lo, hi), a, b in zip(windows, uniform, multires):
+        diff = 100.0 * (b - a) / a
+        developed = lo >= 3000.0
+        held = block.check(f"drag {lo:.0f}-{hi:.0f} s", abs(diff), 2.0) if developed else ""
+        block.lines.append(f"| {lo:.0f}-{hi:.0f} | {a:.4e} | {b:.4e} | {diff:+.2f} % | "
+                           f"{'2 %' if developed else '(developing)'} | {held} |")
+    with open(os.path.join(runner.work, "cylinder_multires.log")) as f:
+        drifts = [float(v) for v in re.findall(
+            r"all levels: real mass +[0-9.eE+-]+ kg \(drift +([0-9.eE+-]+)\)", f.read())]
+    worst = 100.0 * max(abs(d) for d in drifts) if drifts else None
+    block.lines += ["", f"Real fluid mass: largest drift over the run's {len(drifts)} log "
+                    f"lines {worst:.2g} % (limit 0.1 %): "
+                    f"{block.check('real mass drift', worst, 0.1)}"]
+    return [block]
+
+
 def disorder_checks(mode, before, after, new_dx):
     """Issue 10's "disorder kept" checks of one offline remesh to spacing new_dx: (label,
     value, held) for the count, the mean nearest distance, the minimum pair and the CoV of the
@@ -690,6 +737,7 @@ CASES = {
     "cylinder_stokes": (case_cylinder_stokes, False),
     "sphere": (case_sphere, False),
     "cylinder_remesh": (case_cylinder_remesh, False),
+    "cylinder_multires": (case_cylinder_multires, False),
     "remesh_disorder": (case_remesh_disorder, False),
     "cavity_re1000": (case_cavity_re1000, True),
 }
