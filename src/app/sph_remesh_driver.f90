@@ -64,7 +64,7 @@ module sph_remesh_driver
     use sph_mpi_env, only: mpi_env_t, mpi_wp, mpi_i8, global_sum, global_max, agreed_status, &
         broadcast_text
     use sph_particles, only: particles_t, particles_init, particles_reserve, particles_clear, &
-        particles_append, particles_add_field, KIND_FLUID
+        particles_append, particles_add_fields_of, KIND_FLUID
     use sph_domain, only: domain_t, domain_create, domain_partition, domain_owner, &
         migrate_particles
     use sph_halo, only: halo_t, halo_setup, halo_build, halo_reverse_sum
@@ -370,7 +370,7 @@ contains
             type(halo_t) :: halo
             real(wp), allocatable :: xo(:, :), xs(:, :), acc(:, :)
             integer, allocatable :: orig_o(:), orig_n(:)
-            integer :: no, ns, i, nmf, nvf, own, k, added
+            integer :: no, ns, i, nmf, nvf, own
             logical :: ok
             real(wp) :: h, reach, mom_new(3), dv(3), scale, mass_new
             character(len=200) :: text
@@ -380,12 +380,7 @@ contains
             ! the particles that are not fluid aside (with p's run-time fields), the old fluid
             ! in an ORB decomposition of its own
             call particles_init(others, max(count(.not. fluid), 1), dim)
-            if (allocated(p%extra)) then
-                do k = 1, size(p%extra)
-                    added = particles_add_field(others, trim(p%extra(k)%info%name), &
-                        p%extra(k)%info%width, p%extra(k)%info%flags)
-                end do
-            end if
+            call particles_add_fields_of(others, p)
             call particles_append(others, p, pack([(i, i = 1, size(fluid))], .not. fluid))
             call domain_create(parts, env, dim, box_lo, box_hi, periodic)
             call old_fluid(old)

@@ -17,7 +17,7 @@ module sph_particles
     private
     public :: particles_t, particles_init, particles_free, particles_reserve
     public :: particles_copy, particles_gather, particles_clear, particles_visit
-    public :: particles_add_field, particles_append
+    public :: particles_add_field, particles_add_fields_of, particles_append
     public :: particles_pack, particles_unpack, pack_widths, field_list
     public :: field_info_t, field_op_t
     public :: KIND_FLUID, KIND_WALL, KIND_VIRTUAL, KIND_MIRROR, moves_with_flow
@@ -275,6 +275,18 @@ contains
         call move_alloc(grown, p%extra)
     end function particles_add_field
 
+    !> Every run-time field of `source` that p lacks, added to p (zero there).
+    subroutine particles_add_fields_of(p, source)
+        type(particles_t), intent(inout) :: p
+        type(particles_t), intent(in) :: source
+        integer :: k, added
+        if (.not. allocated(source%extra)) return
+        do k = 1, size(source%extra)
+            added = particles_add_field(p, trim(source%extra(k)%info%name), &
+                source%extra(k)%info%width, source%extra(k)%info%flags)
+        end do
+    end subroutine particles_add_fields_of
+
     !> Is a field with these flags selected by mask?
     pure logical function selected(flags, mask)
         integer, intent(in) :: flags, mask
@@ -388,19 +400,14 @@ contains
     subroutine particles_append(p, from, keep)
         type(particles_t), intent(inout) :: p, from
         integer, intent(in) :: keep(:)
-        integer :: first, n_real, n_int, k, added
+        integer :: first, n_real, n_int
         real(wp), allocatable :: rbuf(:, :)
         integer(i8), allocatable :: ibuf(:, :)
         first = p%n_owned + 1
         p%n_total = p%n_owned
         call particles_reserve(p, p%n_owned + size(keep))
         ! the run-time fields p has and `from` lacks (a lattice made on its own): zero there
-        if (allocated(p%extra)) then
-            do k = 1, size(p%extra)
-                added = particles_add_field(from, trim(p%extra(k)%info%name), &
-                    p%extra(k)%info%width, p%extra(k)%info%flags)
-            end do
-        end if
+        call particles_add_fields_of(from, p)
         call pack_widths(from, ALL_FIELDS, n_real, n_int)
         allocate(rbuf(n_real, max(size(keep), 1)), ibuf(n_int, max(size(keep), 1)))
         call particles_pack(from, ALL_FIELDS, keep, size(keep), rbuf, ibuf)
