@@ -18,20 +18,17 @@ contains
 
     module procedure simulation_write_checkpoint
         character(len=:), allocatable :: path, errmsg
+        real(wp), allocatable :: balance(:)
         integer :: stat
         call synchronise(sim, env)
         path = checkpoint_filename(trim(sim%cfg%output%output_dir), trim(sim%cfg%run%case_name), &
             sim%step)
-        if (multires(sim) .and. allocated(sim%level_push)) then
-            call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, &
-                sim%cfg%domain%dimension, code_version, sim%input_text, sim%snapshot_index, &
-                stat, errmsg, sim%cfg%domain%dx, [sim%reference_mass, &
-                reshape(sim%level_push, [size(sim%level_push)]), sim%level_push_mass])
-        else
-            call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, &
-                sim%cfg%domain%dimension, code_version, sim%input_text, sim%snapshot_index, &
-                stat, errmsg, sim%cfg%domain%dx)
-        end if
+        ! the levels' balance of a multi-resolution run (left unallocated: not present)
+        if (multires(sim) .and. allocated(sim%level_push)) balance = [sim%reference_mass, &
+            reshape(sim%level_push, [size(sim%level_push)]), sim%level_push_mass]
+        call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, &
+            sim%cfg%domain%dimension, code_version, sim%input_text, sim%snapshot_index, stat, &
+            errmsg, sim%cfg%domain%dx, balance)
         if (stat /= 0) call fatal_collective('checkpoint', errmsg)
         if (all(sim%checkpoints /= path)) &
             sim%checkpoints = [character(len=512) :: sim%checkpoints, path]

@@ -259,8 +259,11 @@ contains
         n = sim%zones%n_levels
         ! the particles next to virtual ones, marked again for each new neighbour list
         if (sim%near_virtual_list /= sim%nl%generation) then
-            if (allocated(sim%near_virtual)) deallocate(sim%near_virtual)
-            allocate(sim%near_virtual(max(sim%p%n_owned, 1)))
+            if (allocated(sim%near_virtual)) then
+                if (size(sim%near_virtual) < sim%p%n_owned) deallocate(sim%near_virtual)
+            end if
+            if (.not. allocated(sim%near_virtual)) &
+                allocate(sim%near_virtual(max(sim%p%n_owned, 1)))
             call mark_near_virtual(sim%p, sim%nl, sim%level_phys(:)%kernel%support, &
                 sim%near_virtual)
             sim%near_virtual_list = sim%nl%generation
