@@ -10,7 +10,7 @@ submodule (sph_stepper) sph_stepper_shared
     use sph_config, only: config_to_text
     use sph_particles, only: particles_init, HALO_DENSITY, HALO_STRAIN
     use sph_physics, only: physics_from_config, VISCOSITY_STRAIN_RATE, WALLS_MORRIS, &
-        WALL_PRESSURE_EXTRAPOLATED
+        WALL_PRESSURE_EXTRAPOLATED, stiffest_viscosity
     use sph_walls, only: solids_from_config
     use sph_domain, only: domain_create, migrate_particles
     use sph_halo, only: halo_refresh
@@ -298,7 +298,8 @@ contains
         integer :: lv
         do lv = 0, sim%zones%n_levels - 1
             lim = timestep_limits(sim%level_phys(lv)%kernel%h, sim%phys%c, &
-                sim%last_limits%max_speed, sim%phys%nu, sim%last_limits%max_accel, &
+                sim%last_limits%max_speed, stiffest_viscosity(sim%phys), &
+                sim%last_limits%max_accel, &
                 sim%cfg%numerics%cfl, sim%cfg%numerics%viscous_safety, &
                 sim%cfg%numerics%force_safety)
             limit(lv) = lim%dt
@@ -312,7 +313,7 @@ contains
         ! the finest level's smoothing length sets the step
         h = sim%phys%kernel%h
         if (multires(sim)) h = minval(sim%level_phys(:)%kernel%h)
-        lim = timestep_limits(h, sim%phys%c, maxima(1), sim%phys%nu, maxima(2), &
+        lim = timestep_limits(h, sim%phys%c, maxima(1), stiffest_viscosity(sim%phys), maxima(2), &
             sim%cfg%numerics%cfl, sim%cfg%numerics%viscous_safety, sim%cfg%numerics%force_safety)
     end procedure stable_timestep
 end submodule sph_stepper_shared

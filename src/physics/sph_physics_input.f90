@@ -27,6 +27,8 @@ module sph_physics_input
         real(wp) :: h_factor              !< h = h_factor * dx; 0 = kernel's default
         character(len=name_len) :: density_method, viscosity_model, viscosity_normalisation
         character(len=name_len) :: wall_model
+        !> Morris wall velocity: 'linear' (Morris et al. 1997) or 'quadratic' (with curvature)
+        character(len=name_len) :: wall_extrapolation
         real(wp) :: cfl, viscous_safety, force_safety, beta_max
         real(wp) :: fixed_dt              !< s; 0 = the stable limit
         real(wp) :: repulsive_strength    !< D of eq. 2.18; 0 = velocity_scale**2
@@ -93,6 +95,11 @@ contains
         call grp%get_string('wall_model', num%wall_model, 'morris', &
             choices=[character(len=16) :: 'morris', 'repulsive', 'mirror', 'repulsive_mirror'], &
             doc='wall boundary model')
+        call grp%get_string('wall_extrapolation', num%wall_extrapolation, 'linear', &
+            choices=[character(len=12) :: 'linear', 'quadratic'], &
+            doc="Morris wall particles' velocity: extrapolated linearly to the wall " // &
+            "(Morris et al. 1997) or along a parabola whose curvature is the fluid " // &
+            "particle's velocity Laplacian")
         call grp%get_real('cfl', num%cfl, 0.25_wp, min_exclusive=0.0_wp, max=1.0_wp, &
             doc='safety factor of the CFL time-step limit')
         call grp%get_real('viscous_safety', num%viscous_safety, 0.125_wp, &
@@ -143,6 +150,14 @@ contains
             (trim(num%wall_model) == 'mirror' .or. trim(num%wall_model) == 'repulsive_mirror')) &
             call grp%error('viscosity_model', "'strain_rate' works with wall_model = " // &
                 "'morris' only (mirror images do not carry a consistent strain rate)")
+        if (trim(num%wall_extrapolation) == 'quadratic' .and. &
+            trim(num%wall_model) /= 'morris') call grp%error('wall_extrapolation', &
+                "'quadratic' works with wall_model = 'morris' only (the other models have " // &
+                "no wall particles to give a velocity)")
+        if (trim(num%wall_extrapolation) == 'quadratic' .and. &
+            trim(num%viscosity_model) /= 'morris') call grp%error('wall_extrapolation', &
+                "'quadratic' works with viscosity_model = 'morris' only (the curvature is " // &
+                "the Laplacian of Morris' viscous term)")
         if (trim(num%shifting) /= 'none' .and. trim(num%wall_model) /= 'morris') &
             call grp%error('shifting', "'lind' works with wall_model = 'morris' only (the " // &
                 "wall particles must fill the support to complete the concentration field)")

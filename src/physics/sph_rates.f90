@@ -35,7 +35,8 @@ module sph_rates
     use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL, moves_with_flow
     use sph_cell_list, only: neighbour_list_t
     use sph_physics, only: physics_t, VISCOSITY_MORRIS, VISCOSITY_STRAIN_RATE, WALLS_MORRIS, &
-        WALLS_REPULSIVE, WALLS_REPULSIVE_MIRROR, WALL_PRESSURE_CONTINUITY
+        WALLS_REPULSIVE, WALLS_REPULSIVE_MIRROR, WALL_PRESSURE_CONTINUITY, &
+        QUADRATIC_WALL_GAIN
     use sph_eos, only: eos_pressure_many, eos_density
     use sph_solids, only: solids_t, solid_distance, solid_normal, SOLID_PLANE
     implicit none
@@ -146,16 +147,27 @@ contains
         distance_to_wall = dot_product(p%wall_normal(:, j), xi - p%x(:, j)) - p%wall_distance(j)
     end function distance_to_wall
 
-    !> Morris' beta for fluid particle i and wall particle j. A plane wall (or no solids
-    !> given) uses the plane through j stored with it; a body uses its exact distance at x_i
-    !> (d_fluid) and the depth of x_j behind the tangent plane of the surface point nearest
-    !> x_i (d_wall), which is >= 0 for the convex bodies of sph_solids.
+    !> Morris' beta for fluid particle i and wall particle j (wall_depths' distances).
     pure real(wp) function wall_beta(phys, p, i, j, solids)
         type(physics_t), intent(in) :: phys
         type(particles_t), intent(in) :: p
         integer, intent(in) :: i, j
         type(solids_t), intent(in), optional :: solids
-        real(wp) :: d_fluid, d_wall, n(3)
+        real(wp) :: d_fluid, d_wall
+        call wall_depths(p, i, j, d_fluid, d_wall, solids)
+        wall_beta = morris_beta(d_fluid, d_wall, phys%beta_max)
+    end function wall_beta
+
+    !> Distances of fluid particle i in front of and wall particle j behind the wall. A plane
+    !> wall (or no solids given) uses the plane through j stored with it; a body uses its
+    !> exact distance at x_i (d_fluid) and the depth of x_j behind the tangent plane of the
+    !> surface point nearest x_i (d_wall), which is >= 0 for the convex bodies of sph_solids.
+    pure subroutine wall_depths(p, i, j, d_fluid, d_wall, solids)
+        type(particles_t), intent(in) :: p
+        integer, intent(in) :: i, j
+        real(wp), intent(out) :: d_fluid, d_wall
+        type(solids_t), intent(in), optional :: solids
+        real(wp) :: n(3)
         logical :: curved
         curved = .false.
         if (present(solids)) then
@@ -167,12 +179,11 @@ contains
                 n = solid_normal(body, p%x(:, i))
                 d_wall = dot_product(n, p%x(:, i) - p%x(:, j)) - d_fluid
             end associate
-            wall_beta = morris_beta(d_fluid, d_wall, phys%beta_max)
         else
-            wall_beta = morris_beta(distance_to_wall(p, p%x(:, i), j), p%wall_distance(j), &
-                phys%beta_max)
+            d_fluid = distance_to_wall(p, p%x(:, i), j)
+            d_wall = p%wall_distance(j)
         end if
-    end function wall_beta
+    end subroutine wall_depths
 
     !> rho_i = sum_j m_j W_ij (self included) for owned fluid particles; walls keep theirs.
     subroutine compute_summation_density(phys, p, nl, level)
@@ -269,19 +280,26 @@ contains
         logical, allocatable :: flows(:)      !< fluid, real or virtual (moves_with_flow)
         real(wp), allocatable :: handed(:, :) !< rates handed on by morris_fluid_pairs
         integer, allocatable :: other(:)      !< the partners of i that are not fluid
+        integer, allocatable :: all_near(:)   !< wall_curvature: all partners of i
+        real(wp), allocatable :: all_r(:), all_r2(:), all_dwdr(:)
         logical :: repulsive_walls, morris_walls, strain_viscosity, tvf, fast_fluid, fast_walls
         logical, allocatable :: curved(:)     !< solid s (1..) is not a plane
         real(wp), allocatable :: vol_sq(:)   !< transport velocity: (m/rho)^2 of all particles
+        logical :: quadratic_walls            !< Morris walls with wall_extrapolation = quadratic
+        real(wp) :: curv_i(3)                 !< half of i's velocity Laplacian (wall_curvature)
+        real(wp) :: d_f, d_w
 
         support2 = phys%kernel%support**2
         repulsive_walls = phys%walls == WALLS_REPULSIVE .or. phys%walls == WALLS_REPULSIVE_MIRROR
         morris_walls = phys%walls == WALLS_MORRIS
+        quadratic_walls = morris_walls .and. phys%wall_quadratic .and. phys%nu > 0.0_wp
         strain_viscosity = phys%viscosity == VISCOSITY_STRAIN_RATE
         visc_scale = phys%nu * phys%viscous_scale
         k = 0
         if (p%n_owned > 0) k = maxval(nl%start(2:p%n_owned + 1) - nl%start(1:p%n_owned))
         allocate(near(k), d_near(3, k), r_near(k), r2_near(k), dwdr_near(k), grad_near(k), &
             visc_near(k), other(k))
+        if (quadratic_walls) allocate(all_near(k), all_r(k), all_r2(k), all_dwdr(k))
         ! what a pair reads of j, packed: one or two cache lines per neighbour
         ! of the particles of this level only: the list pairs no others (half the work of a
         ! two-level run, evaluated level by level)
@@ -395,6 +413,10 @@ contains
                 grad_near(m) = dwdr_near(m) / r_near(m)
                 visc_near(m) = r_near(m) * dwdr_near(m) / (r2_near(m) + phys%eta2)
             end do
+            curv_i = 0.0_wp
+            if (quadratic_walls) then
+                if (any(p%kind(near(n_fluid + 1:n_near)) == KIND_WALL)) call wall_curvature()
+            end if
             if (n_fluid > 0) call morris_fluid_pairs(n_fluid, near, d_near, grad_near, &
                 visc_near, i, visc_scale, state, drho, dv, de, handed)
             ! Morris' walls: every other partner is a wall particle (morris_wall_pairs)
@@ -451,8 +473,10 @@ contains
                     coeff = visc_scale * (state(6, i) + state(6, j)) * visc_near(m)
                     vvisc = vij
                     if (morris_walls .and. p%kind(j) == KIND_WALL) then
-                        beta = wall_beta(phys, p, i, j, solids)
-                        vvisc = beta * vij
+                        call wall_depths(p, i, j, d_f, d_w, solids)
+                        beta = morris_beta(d_f, d_w, phys%beta_max)
+                        ! the wall particle's velocity on the parabola (wall_curvature)
+                        vvisc = beta * vij - curv_i * (d_w * (d_f + d_w))
                     end if
                     f = f + coeff * vvisc
                     e_pair = e_pair - 0.5_wp * coeff * dot_product(vvisc, vvisc)
@@ -499,6 +523,53 @@ contains
 
     contains
 
+        !> Half the velocity Laplacian of owned fluid particle i next to Morris walls, the
+        !> curvature c of the parabola u(n) = v_w + a n + c n^2 through the wall (n the
+        !> distance from it) on which its wall partners' velocities lie:
+        !>   v_i - v_j = beta (v_i - v_w) - c d_w (d_f + d_w)
+        !> (Morris' linear extrapolation is c = 0). At a no-slip wall the tangential
+        !> derivatives vanish, so c = (1/2) d2u/dn2 = lap(u) / 2: Morris' viscous sum over all
+        !> of i's partners, A = nu lap(u), with the wall terms taken on the same parabola, is
+        !> A = S - c K (S the sum with c = 0, K = sum m_j f_ij d_w (d_f + d_w) <= 0), solved for
+        !> c = A / (2 nu) in closed form: A = S 2 nu / (2 nu + K), i's viscous term raised by
+        !> the gain 2 nu / (2 nu + K), about 1.4 for the first row of a lattice at a plane
+        !> wall, more for particles closer to it or between walls a few spacings apart. The
+        !> gain is held at QUADRATIC_WALL_GAIN, which the viscous time step assumes.
+        subroutine wall_curvature()
+            integer :: kk, jj, nn, mm
+            real(wp) :: dd(3), rr2, cc, s_sum(3), k_sum, dfl, dwl
+            nn = 0
+            do kk = nl%start(i), nl%start(i + 1) - 1
+                jj = nl%index(kk)
+                if (.not. (flows(jj) .or. p%kind(jj) == KIND_WALL)) cycle
+                dd = xi - p%x(:, jj)
+                rr2 = dd(1)**2 + dd(2)**2 + dd(3)**2
+                if (rr2 <= 0.0_wp .or. rr2 >= support2) cycle
+                nn = nn + 1
+                all_near(nn) = jj
+                all_r2(nn) = rr2
+            end do
+            all_r(1:nn) = sqrt(all_r2(1:nn))
+            call phys%kernel%dwdr_many(all_r(1:nn), all_dwdr(1:nn))
+            s_sum = 0.0_wp
+            k_sum = 0.0_wp
+            do mm = 1, nn
+                jj = all_near(mm)
+                cc = state(4, jj) * visc_scale * (state(6, i) + state(6, jj)) * all_r(mm) * &
+                    all_dwdr(mm) / (all_r2(mm) + phys%eta2)
+                if (p%kind(jj) == KIND_WALL) then
+                    call wall_depths(p, i, jj, dfl, dwl, solids)
+                    s_sum = s_sum + (cc * morris_beta(dfl, dwl, phys%beta_max)) * &
+                        (state(1:3, i) - state(1:3, jj))
+                    k_sum = k_sum + cc * dwl * (dfl + dwl)
+                else
+                    s_sum = s_sum + cc * (state(1:3, i) - state(1:3, jj))
+                end if
+            end do
+            curv_i = s_sum / max(2.0_wp * phys%nu + k_sum, &
+                2.0_wp * phys%nu / QUADRATIC_WALL_GAIN)
+        end subroutine wall_curvature
+
         !> The solid whose force a pair with j counts towards, 0 when forces are not asked
         !> for or j belongs to no solid (fluid).
         integer function force_slot(jj)
@@ -519,7 +590,7 @@ contains
         subroutine morris_wall_pairs(first, last)
             integer, intent(in) :: first, last
             integer :: mm, jj, ss
-            real(wp) :: gw(3), vw(3), vgw, pw, cw, bw, vv(3), fw(3), ew, mw, df
+            real(wp) :: gw(3), vw(3), vgw, pw, cw, bw, vv(3), fw(3), ew, mw, df, dw
             logical :: bw_curved
             do mm = first, last
                 jj = near(mm)
@@ -538,16 +609,17 @@ contains
                     bw_curved = .false.
                 end if
                 if (bw_curved) then
-                    bw = wall_beta(phys, p, i, jj, solids)
+                    call wall_depths(p, i, jj, df, dw, solids)
                 else
                     ! distance_to_wall written out: calling it here (inlined) made the rates
                     ! 5 % slower on the channel, four runs side by side
                     df = p%wall_normal(1, jj) * (xi(1) - p%x(1, jj)) + p%wall_normal(2, jj) * &
                         (xi(2) - p%x(2, jj)) + p%wall_normal(3, jj) * (xi(3) - p%x(3, jj)) - &
                         p%wall_distance(jj)
-                    bw = morris_beta(df, p%wall_distance(jj), phys%beta_max)
+                    dw = p%wall_distance(jj)
                 end if
-                vv = bw * vw
+                bw = morris_beta(df, dw, phys%beta_max)
+                vv = bw * vw - curv_i * (dw * (df + dw))
                 fw = fw + cw * vv
                 ew = ew - 0.5_wp * cw * (vv(1) * vv(1) + vv(2) * vv(2) + vv(3) * vv(3))
                 drho = drho + mw * vgw
