@@ -7,12 +7,13 @@ input stored in each file).
   scripts/sph_error_table.py --steady output/poiseuille/poiseuille_007575.h5
   scripts/sph_error_table.py --level 1 output/poiseuille_multires/*.h5
   scripts/sph_error_table.py --band 0.25e-3 0.75e-3 output/poiseuille/*.h5
+  scripts/sph_error_table.py --outside 0.25e-3 0.75e-3 output/poiseuille/*.h5
 
 The error is ||v - v_exact|| / ||v_exact|| over all real fluid particles (every velocity
 component counts; virtual particles, kind 2, are left out). The case comes from the file's
 `analytic` input key, or --case. --level restricts the sums to the real particles of one
 resolution level (a multi-resolution run), --band to those with band[0] <= y < band[1]
-(the same region of a uniform run, for comparison).
+(the same region of a uniform run, for comparison), --outside to the others.
 """
 import argparse
 import sys
@@ -47,7 +48,7 @@ def channel_parameters(text):
     }
 
 
-def snapshot_error(path, case=None, steady=False, level=None, band=None):
+def snapshot_error(path, case=None, steady=False, level=None, band=None, outside=None):
     with h5py.File(path, "r") as f:
         time = float(f.attrs["time"])
         text = f.attrs["input"]
@@ -64,6 +65,8 @@ def snapshot_error(path, case=None, steady=False, level=None, band=None):
         fluid &= levels == level
     if band is not None:
         fluid &= (pos[:, 1] >= band[0]) & (pos[:, 1] < band[1])
+    if outside is not None:
+        fluid &= (pos[:, 1] < outside[0]) | (pos[:, 1] >= outside[1])
     y = pos[fluid, 1] - par["y0"]
     t = np.inf if steady else time
     if case == "poiseuille":
@@ -89,12 +92,14 @@ def main(argv=None):
     parser.add_argument("--level", type=int, help="only the real particles of this level")
     parser.add_argument("--band", type=float, nargs=2, metavar=("YLO", "YHI"),
                         help="only the particles with YLO <= y < YHI (m)")
+    parser.add_argument("--outside", type=float, nargs=2, metavar=("YLO", "YHI"),
+                        help="only the particles with y < YLO or y >= YHI (m)")
     args = parser.parse_args(argv)
     print(f"{'file':<48} {'t [s]':>10} {'dx/L':>8} {'fluid':>7} {'rel. L2 error':>14}")
     for path in args.snapshots:
         try:
             time, par, err, n = snapshot_error(path, args.case, args.steady, args.level,
-                                               args.band)
+                                               args.band, args.outside)
         except (OSError, KeyError, ValueError) as problem:
             print(f"sph_error_table: {path}: {problem}", file=sys.stderr)
             return 1
