@@ -14,7 +14,7 @@ module sph_stepper
     use sph_mpi_env, only: mpi_env_t, global_sum, global_max, broadcast_text
     use sph_errors, only: fatal_collective
     use sph_logger, only: log_info
-    use sph_particles, only: particles_t, particles_gather, KIND_FLUID, HALO_MOVE, &
+    use sph_particles, only: particles_t, particles_gather, KIND_FLUID, HALO_DENSITY, HALO_MOVE, &
         HALO_TRANSPORT, HALO_GHOST
     use sph_physics, only: physics_t, DENSITY_SUMMATION, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR, &
         SHIFTING_NONE
@@ -24,7 +24,7 @@ module sph_stepper
     use sph_domain, only: domain_t, domain_partition, domain_imbalance
     use sph_halo, only: halo_t, halo_setup, halo_build
     use sph_cell_list, only: neighbour_list_t, build_neighbour_list, cell_sort_order
-    use sph_rates, only: update_pressure, release_rates_scratch
+    use sph_rates, only: update_pressure, release_rates_scratch, shepard_density
     use sph_shifting, only: shifting_diffusion, shift_particles
     use sph_timestep, only: timestep_limits_t
     use sph_integrator, only: save_step_start, advance, max_step_displacement, verlet_drift, &
@@ -635,10 +635,33 @@ contains
         call corrector(sim, dt)
         call shift(sim, env, dt)
         call migrate_and_rebuild(sim, env)
+        call filter_density(sim, env)
         call remesh_if_due(sim, env)
         call update_transition_zones(sim, env)
         call check_health(sim, env)
     end subroutine predictor_corrector_step
+
+    !> &numerics density_filter = 'shepard': every density_filter_interval steps, after the
+    !> step's migration (ghosts and list current), the real fluid's densities are filtered
+    !> level by level (sph_rates shepard_density) and the ghosts and pressures follow.
+    subroutine filter_density(sim, env)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        integer :: lv, previous
+        if (sim%phys%density_filter_interval <= 0) return
+        if (mod(sim%step, int(sim%phys%density_filter_interval, i8)) /= 0_i8) return
+        call timers_enter(sim%timers, TIMER_OTHER, previous)
+        if (multires(sim)) then
+            do lv = 0, sim%zones%n_levels - 1
+                call shepard_density(sim%level_phys(lv), sim%p, sim%nl, lv)
+            end do
+        else
+            call shepard_density(sim%phys, sim%p, sim%nl)
+        end if
+        call refresh_ghosts(sim, env, HALO_DENSITY)
+        call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
+        call timers_leave(sim%timers, previous)
+    end subroutine filter_density
 
     !> One velocity-Verlet step (sph_integrator verlet_drift, verlet_kick) with one rate
     !> evaluation: the step-start rates are those kept from the previous step (evaluated

@@ -29,6 +29,7 @@ module sph_kernel
         procedure :: w => kernel_t_w
         procedure :: dwdr => kernel_t_dwdr
         procedure :: dwdr_many => kernel_t_dwdr_many
+        procedure :: w_many => kernel_t_w_many
     end type kernel_t
 
 contains
@@ -246,4 +247,26 @@ contains
             end do
         end select
     end subroutine kernel_t_dwdr_many
+
+    !> W of a batch of distances (as dwdr_many: the kernel chosen once, the cubic's pieces
+    !> without branches).
+    pure subroutine kernel_t_w_many(self, r, w)
+        class(kernel_t), intent(in) :: self
+        real(wp), intent(in) :: r(:)
+        real(wp), intent(out) :: w(:)
+        integer :: k
+        real(wp) :: q
+        select case (self%id)
+        case (KERNEL_CUBIC)
+            do k = 1, size(r)
+                q = r(k) * self%inv_h
+                w(k) = self%w_norm * merge(1.0_wp - 1.5_wp * q**2 + 0.75_wp * q**3, &
+                    0.25_wp * max(2.0_wp - q, 0.0_wp)**3, q < 1.0_wp)
+            end do
+        case default
+            do k = 1, size(r)
+                w(k) = self%w_norm * shape(self%id, self%dim, r(k) * self%inv_h)
+            end do
+        end select
+    end subroutine kernel_t_w_many
 end module sph_kernel

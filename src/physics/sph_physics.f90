@@ -43,6 +43,9 @@ module sph_physics
         !> Morris wall velocities on a parabola through the wall (curvature from the fluid);
         !> it raises the viscous term next to a wall by at most QUADRATIC_WALL_GAIN
         logical :: wall_quadratic = .false.
+        !> Shepard filter of the integrated density every density_filter_interval steps (0:
+        !> none)
+        integer :: density_filter_interval = 0
         real(wp) :: eta2 = 0.0_wp          !< 0.01 h^2: keeps Morris' viscous term finite
         real(wp) :: viscous_scale = 1.0_wp !< 1 / lattice second moment of Morris' operator
         real(wp) :: repulsive_d = 0.0_wp, repulsive_r0 = 0.0_wp
@@ -111,6 +114,9 @@ contains
         end select
         phys%beta_max = cfg%numerics%beta_max
         phys%wall_quadratic = trim(cfg%numerics%wall_extrapolation) == 'quadratic'
+        phys%density_filter_interval = 0
+        if (trim(cfg%numerics%density_filter) == 'shepard') &
+            phys%density_filter_interval = cfg%numerics%density_filter_interval
         phys%eta2 = 0.01_wp * phys%kernel%h**2
         phys%viscous_scale = 1.0_wp
         if (trim(cfg%numerics%viscosity_normalisation) == 'lattice') phys%viscous_scale = &

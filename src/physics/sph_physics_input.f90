@@ -29,6 +29,9 @@ module sph_physics_input
         character(len=name_len) :: wall_model
         !> Morris wall velocity: 'linear' (Morris et al. 1997) or 'quadratic' (with curvature)
         character(len=name_len) :: wall_extrapolation
+        !> 'none' or 'shepard': the integrated density renormalised every density_filter_interval
+        character(len=name_len) :: density_filter
+        integer :: density_filter_interval
         real(wp) :: cfl, viscous_safety, force_safety, beta_max
         real(wp) :: fixed_dt              !< s; 0 = the stable limit
         real(wp) :: repulsive_strength    !< D of eq. 2.18; 0 = velocity_scale**2
@@ -87,6 +90,13 @@ contains
         call grp%get_string('density_method', num%density_method, 'continuity', &
             choices=[character(len=12) :: 'continuity', 'summation'], &
             doc='integrated continuity equation or summation')
+        call grp%get_string('density_filter', num%density_filter, 'none', &
+            choices=[character(len=8) :: 'none', 'shepard'], &
+            doc="'shepard': every density_filter_interval steps each fluid particle's " // &
+            "integrated density is replaced by sum m W / sum (m/rho) W over its " // &
+            "partners, which a uniform density keeps on any arrangement")
+        call grp%get_int('density_filter_interval', num%density_filter_interval, 1, min=1, &
+            doc='steps between two Shepard filters of the density')
         call grp%get_string('viscosity_model', num%viscosity_model, 'morris', &
             choices=[character(len=12) :: 'morris', 'strain_rate'], doc='viscous term')
         call grp%get_string('viscosity_normalisation', num%viscosity_normalisation, &
@@ -158,6 +168,14 @@ contains
             trim(num%viscosity_model) /= 'morris') call grp%error('wall_extrapolation', &
                 "'quadratic' works with viscosity_model = 'morris' only (the curvature is " // &
                 "the Laplacian of Morris' viscous term)")
+        if (trim(num%density_filter) == 'shepard' .and. &
+            trim(num%density_method) /= 'continuity') call grp%error('density_filter', &
+                "'shepard' filters the integrated density; it works with density_method = " // &
+                "'continuity' only")
+        if (trim(num%density_filter) == 'shepard' .and. &
+            trim(num%integrator) /= 'predictor_corrector') call grp%error('density_filter', &
+                "'shepard' works with integrator = 'predictor_corrector' only (Verlet " // &
+                "keeps the rates of the densities it evaluated them with)")
         if (trim(num%shifting) /= 'none' .and. trim(num%wall_model) /= 'morris') &
             call grp%error('shifting', "'lind' works with wall_model = 'morris' only (the " // &
                 "wall particles must fill the support to complete the concentration field)")

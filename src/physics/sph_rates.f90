@@ -44,6 +44,7 @@ module sph_rates
     public :: update_pressure, extrapolate_wall_density, compute_summation_density
     public :: compute_strain_rate, compute_rates
     public :: local_max_speed, local_motion_maxima, morris_beta, release_rates_scratch
+    public :: shepard_density
 
     !> strain(6) components: xx, yy, zz, xy, xz, yz
     integer, parameter :: voigt(3, 3) = reshape([1, 4, 5, 4, 2, 6, 5, 6, 3], [3, 3])
@@ -206,6 +207,52 @@ contains
             p%rho(i) = s
         end do
     end subroutine compute_summation_density
+
+    !> Shepard filter of the density of owned real fluid particles (of one level):
+    !>   rho_i = sum_j m_j W_ij / sum_j (m_j / rho_j) W_ij   (self included)
+    !> over the partners the summation density takes (real, virtual and wall particles). A
+    !> uniform density is kept exactly on any arrangement, where the kernel sum alone (and
+    !> the continuity equation, which follows it) changes as rows of a lattice slide past
+    !> each other (physics.md, "Known behaviour"). Walls and virtual particles keep theirs.
+    subroutine shepard_density(phys, p, nl, level)
+        type(physics_t), intent(in) :: phys
+        type(particles_t), intent(inout) :: p
+        type(neighbour_list_t), intent(in) :: nl
+        integer, intent(in), optional :: level
+        integer :: i, k, j, n, m
+        real(wp) :: w0, num, den, d(3), r2, support2
+        real(wp), allocatable :: filtered(:), r(:), w(:), mass(:), volume(:)
+        w0 = phys%kernel%w(0.0_wp)
+        support2 = phys%kernel%support**2
+        n = 0
+        if (p%n_owned > 0) n = maxval(nl%start(2:p%n_owned + 1) - nl%start(1:p%n_owned))
+        allocate(filtered(p%n_owned), r(n), w(n), mass(n), volume(n))
+        do i = 1, p%n_owned
+            filtered(i) = p%rho(i)
+            if (p%kind(i) /= KIND_FLUID) cycle
+            if (other_level(p, i, level)) cycle
+            ! the partners within the support, then W of all of them in one kernel call
+            m = 0
+            do k = nl%start(i), nl%start(i + 1) - 1
+                j = nl%index(k)
+                if (repulsive_only(phys, p%kind(j))) cycle
+                d(1) = p%x(1, i) - p%x(1, j)
+                d(2) = p%x(2, i) - p%x(2, j)
+                d(3) = p%x(3, i) - p%x(3, j)
+                r2 = d(1)**2 + d(2)**2 + d(3)**2
+                if (r2 >= support2) cycle
+                m = m + 1
+                r(m) = sqrt(r2)
+                mass(m) = p%m(j)
+                volume(m) = p%m(j) / p%rho(j)
+            end do
+            call phys%kernel%w_many(r(1:m), w(1:m))
+            num = p%m(i) * w0 + sum(mass(1:m) * w(1:m))
+            den = p%m(i) / p%rho(i) * w0 + sum(volume(1:m) * w(1:m))
+            filtered(i) = num / den
+        end do
+        p%rho(1:p%n_owned) = filtered
+    end subroutine shepard_density
 
     !> Strain rate (thesis eq. 2.16, corrected) of owned particles:
     !> eps^ab = sum_j m_j/rho_j (v_ji^b dW/dx^a + v_ji^a dW/dx^b)
