@@ -203,68 +203,101 @@ CHANNEL_LIMITS_QUADRATIC = {
     ("couette", 80): (0.027, 0.0047, 0.015, 0.015),
     ("poiseuille_3d", 40): (0.075, 0.028, 0.13, 0.32),
 }
-WALL_EXTRAPOLATIONS = ("linear", "quadratic")
+# and with density_filter = 'shepard' besides (physics.md, Known behaviour)
+CHANNEL_LIMITS_SHEPARD = {
+    ("poiseuille", 20): (0.26, 0.09, 0.014, 0.08),
+    ("poiseuille", 40): (0.08, 0.025, 0.012, 0.075),
+    ("poiseuille", 80): (0.022, 0.007, 0.012, 0.07),
+    ("couette", 20): (0.36, 0.034, 0.07, 0.012),
+    ("couette", 40): (0.1, 0.016, 0.008, 0.011),
+    ("couette", 80): (0.027, 0.022, 0.015, 0.018),
+    ("poiseuille_3d", 40): (0.075, 0.024, 0.06, 0.3),
+}
+# the channel case's numerics: (name, &numerics settings, title suffix, limits)
+CHANNEL_NUMERICS = (
+    ("linear", {}, "", CHANNEL_LIMITS),
+    ("quadratic", {"wall_extrapolation": "quadratic"}, ", quadratic walls",
+     CHANNEL_LIMITS_QUADRATIC),
+    ("quadratic_shepard", {"wall_extrapolation": "quadratic", "density_filter": "shepard"},
+     ", quadratic walls, Shepard filter", CHANNEL_LIMITS_SHEPARD))
 
 
-def channel_run_name(case, n, extrapolation="linear"):
-    """The channel case's run of `case` at L/n with that wall extrapolation."""
-    return f"{case}_L{n}" + ("" if extrapolation == "linear" else f"_{extrapolation}")
+def channel_run_name(case, n, numerics="linear"):
+    """The channel case's run of `case` at L/n with those numerics (CHANNEL_NUMERICS)."""
+    return f"{case}_L{n}" + ("" if numerics == "linear" else f"_{numerics}")
+
+
+def channel_numerics_of(nml):
+    """The CHANNEL_NUMERICS name whose settings a resolved input has (None: none)."""
+    numerics = nml["numerics"]
+    chosen = {key: str(numerics.get(key, default)).strip().lower() for key, default in
+              (("wall_extrapolation", "linear"), ("density_filter", "none"))}
+    for name, settings, _, _ in CHANNEL_NUMERICS:
+        wanted = {"wall_extrapolation": "linear", "density_filter": "none", **settings}
+        if chosen == wanted:
+            return name
+    return None
 
 
 def case_channel(runner, args):
     """Couette and Poiseuille from rest at L/20, L/40, L/80 and 3D Poiseuille at L/40, with
-    Morris' wall extrapolation (as shipped) and the quadratic one: the README's accuracy
-    table and the profile figures (linear)."""
+    Morris' wall extrapolation (as shipped), the quadratic one, and the quadratic one with
+    the Shepard density filter: the README's accuracy table (linear) with the profile
+    figures, and the other numerics' table in validation.md."""
     block = Block("channel")
+    variants = Block("channel_numerics")
     rows = []
     figure_runs = {}
-    for extrapolation in WALL_EXTRAPOLATIONS:
+    for numerics, settings, _, _ in CHANNEL_NUMERICS:
         for case, source, resolutions in (("poiseuille", "poiseuille.nml", (20, 40, 80)),
                                           ("couette", "couette.nml", (20, 40, 80)),
                                           ("poiseuille_3d", "poiseuille_3d.nml", (40,))):
             for n in resolutions:
-                out = runner.run(channel_run_name(case, n, extrapolation), source, {
+                out = runner.run(channel_run_name(case, n, numerics), source, {
                     "run": {"t_end": 2.0},
                     "domain": {"dx": 1.0e-3 / n},
-                    "numerics": {"wall_extrapolation": extrapolation},
+                    "numerics": settings,
                     "output": {"output_interval": 0.0, "output_times": list(CHANNEL_TIMES)}})
                 if out is None:
-                    rows.append((case, n, extrapolation, None))
+                    rows.append((case, n, numerics, None))
                     continue
                 analytic = "couette" if case == "couette" else "poiseuille"
                 errors = []
                 for k, snap in enumerate(snapshots_at(out, CHANNEL_TIMES)):
                     steady = k == len(CHANNEL_TIMES) - 1
                     errors.append(l2_percent(snap, analytic, steady=steady))
-                rows.append((case, n, extrapolation, errors))
-                if n == 40 and case != "poiseuille_3d" and extrapolation == "linear":
+                rows.append((case, n, numerics, errors))
+                if n == 40 and case != "poiseuille_3d" and numerics == "linear":
                     figure_runs[case] = snapshots_at(out, CHANNEL_TIMES[:3])
-    block.lines += [
-        "| case | t = 0.0225 s | 0.225 s | 1 s | steady (2 s) | limits | held |",
-        "|---|---|---|---|---|---|---|"]
+    for table in (block, variants):
+        table.lines += [
+            "| case | t = 0.0225 s | 0.225 s | 1 s | steady (2 s) | limits | held |",
+            "|---|---|---|---|---|---|---|"]
     titles = {"poiseuille": "Poiseuille", "couette": "Couette",
               "poiseuille_3d": "3D Poiseuille"}
-    for case, n, extrapolation, errors in rows:
-        quadratic = extrapolation == "quadratic"
-        limits = (CHANNEL_LIMITS_QUADRATIC if quadratic else CHANNEL_LIMITS)[(case, n)]
-        title = f"{titles[case]}, dx = L/{n}" + (", quadratic walls" if quadratic else "")
-        label = channel_run_name(case, n, extrapolation)
+    suffixes = {name: (suffix, limits) for name, _, suffix, limits in CHANNEL_NUMERICS}
+    for case, n, numerics, errors in rows:
+        suffix, all_limits = suffixes[numerics]
+        limits = all_limits[(case, n)]
+        table = block if numerics == "linear" else variants
+        title = f"{titles[case]}, dx = L/{n}{suffix}"
+        label = channel_run_name(case, n, numerics)
         if errors is None:
-            block.failed.append(f"channel: {label} did not run")
-            block.lines.append(f"| {title} | run failed | | | | | **NO** |")
+            table.failed.append(f"channel: {label} did not run")
+            table.lines.append(f"| {title} | run failed | | | | | **NO** |")
             continue
-        held = [block.check(f"{label} at {t} s", e, lim)
+        held = [table.check(f"{label} at {t} s", e, lim)
                 for t, e, lim in zip(CHANNEL_TIMES, errors, limits)]
         ok = "yes" if all(h == "yes" for h in held) else "**NO**"
         cells = " | ".join(percent(e) for e in errors)
-        block.lines.append(f"| {title} | {cells} | "
+        table.lines.append(f"| {title} | {cells} | "
                            f"{' / '.join(f'{x:g}' for x in limits)} % | {ok} |")
     for case, files in figure_runs.items():
         figure = os.path.join(ROOT, "doc", f"{case}_profiles.png")
         status, text = script("sph_plot_profiles.py", *files, "--output", figure)
         if status != 0:
             block.failed.append(f"channel: the {case} figure failed: {text.strip()}")
-    return [block]
+    return [block, variants]
 
 
 def case_long_poiseuille(runner, args):
@@ -661,7 +694,7 @@ def case_remesh_disorder(runner, args):
 
 def case_multires(runner, args):
     """Multi-resolution Couette and Poiseuille (L/20 channel, L/40 band or lower half): error
-    per level against the uniform runs (same wall extrapolation) in the same region, their
+    per level against the uniform runs (same numerics) in the same region, their
     ratio (issue 11: at most 1.25, reported, not held), and the density jump at the
     interfaces."""
     block = Block("multires")
@@ -676,6 +709,9 @@ def case_multires(runner, args):
                  "poiseuille_multires", True),
                 ("poiseuille, fine lower half", "poiseuille", "poiseuille_multires_wall.nml", {},
                  "poiseuille_multires_wall", False),
+                ("poiseuille, Shepard filter", "poiseuille", "poiseuille_multires.nml",
+                 {"numerics": {"density_filter": "shepard"}}, "poiseuille_multires_shepard",
+                 False),
                 ("couette", "couette", "couette_multires.nml", {}, "couette_multires", True),
                 ("poiseuille, Verlet, max_subcycles = 4", "poiseuille",
                  "poiseuille_multires.nml", subcycled, "poiseuille_multires_subcycled", False))
@@ -688,9 +724,9 @@ def case_multires(runner, args):
         snaps = snapshots_at(out, times)
         nml = sph_snapshot.namelist(sph_snapshot.load(snaps[-1]))
         band = region_band(nml)
-        # the uniform runs of the channel case with the same wall extrapolation
-        extrapolation = str(nml["numerics"].get("wall_extrapolation", "linear")).strip()
-        uniform = {n: os.path.join(runner.work, channel_run_name(case, n, extrapolation))
+        # the uniform runs of the channel case with the same numerics (none: no reference)
+        numerics = channel_numerics_of(nml)
+        uniform = {n: os.path.join(runner.work, channel_run_name(case, n, numerics or "none"))
                    for n in (20, 40)}
         profile = (["--figure", os.path.join(ROOT, "doc", f"{case}_multires_profile.png")]
                    if figure else [])
