@@ -173,15 +173,19 @@ contains
                 deallocate(dl, wl, cw, al)
                 allocate(dl(3, n_cand), wl(n_cand), cw(n_cand), al(n_cand))
             end if
+            ! components written out and the weight without branches: most candidates lie
+            ! outside the cube, and the tests per axis were most of this loop's time
             nloc = 0
             do p = 1, n_cand
                 k = cand(p)
-                d = 0.0_wp
-                d(1:dim) = (x_new(1:dim, k) - xj(1:dim)) * inv_h
-                f = m4_weight(d(1))
-                do c = 2, dim
-                    f = f * m4_weight(d(c))
-                end do
+                d(1) = (x_new(1, k) - xj(1)) * inv_h
+                d(2) = 0.0_wp
+                d(3) = 0.0_wp
+                if (dim > 1) d(2) = (x_new(2, k) - xj(2)) * inv_h
+                if (dim > 2) d(3) = (x_new(3, k) - xj(3)) * inv_h
+                f = m4_weight(d(1)) * m4_weight(d(2))
+                if (dim > 2) f = f * m4_weight(d(3))
+                if (dim == 1) f = m4_weight(d(1))
                 if (f <= 0.0_wp) cycle
                 nloc = nloc + 1
                 dl(:, nloc) = d
@@ -340,17 +344,13 @@ contains
 
     !> The cubic B-spline M4 (sph_interpolation_kernels' m4_bspline), here so that the
     !> transfer's pair loop inlines it: 2/3 - s^2 + |s|^3/2 (|s| < 1), (2 - |s|)^3/6 (< 2).
+    !> (Both pieces evaluated and one chosen, no branch; beyond |s| = 2 the second is 0.)
     pure real(wp) function m4_weight(s) result(w)
         real(wp), intent(in) :: s
-        real(wp) :: a
+        real(wp) :: a, b
         a = abs(s)
-        if (a < 1.0_wp) then
-            w = 2.0_wp / 3.0_wp - a * a + 0.5_wp * a * a * a
-        else if (a < 2.0_wp) then
-            w = (2.0_wp - a)**3 / 6.0_wp
-        else
-            w = 0.0_wp
-        end if
+        b = max(2.0_wp - a, 0.0_wp)
+        w = merge(2.0_wp / 3.0_wp - a * a + 0.5_wp * a * a * a, b * b * b / 6.0_wp, a < 1.0_wp)
     end function m4_weight
 
     !> Solve the dim x dim system m x = r by Gaussian elimination with partial pivoting;
