@@ -57,6 +57,7 @@ module sph_rates
     type :: rates_scratch_t
         real(wp), allocatable :: state(:, :), handed(:, :)
         logical, allocatable :: paired(:), flows(:)
+        real(wp), allocatable :: filtered(:)    !< shepard_density's new densities
     end type rates_scratch_t
     type(rates_scratch_t), save :: kept_scratch
 
@@ -221,37 +222,45 @@ contains
         integer, intent(in), optional :: level
         integer :: i, k, j, n, m
         real(wp) :: w0, num, den, d(3), r2, support2
-        real(wp), allocatable :: filtered(:), r(:), w(:), mass(:), volume(:)
+        real(wp), allocatable :: r(:), w(:), mass(:), volume(:)
         w0 = phys%kernel%w(0.0_wp)
         support2 = phys%kernel%support**2
         n = 0
         if (p%n_owned > 0) n = maxval(nl%start(2:p%n_owned + 1) - nl%start(1:p%n_owned))
-        allocate(filtered(p%n_owned), r(n), w(n), mass(n), volume(n))
-        do i = 1, p%n_owned
-            filtered(i) = p%rho(i)
-            if (p%kind(i) /= KIND_FLUID) cycle
-            if (other_level(p, i, level)) cycle
-            ! the partners within the support, then W of all of them in one kernel call
-            m = 0
-            do k = nl%start(i), nl%start(i + 1) - 1
-                j = nl%index(k)
-                if (repulsive_only(phys, p%kind(j))) cycle
-                d(1) = p%x(1, i) - p%x(1, j)
-                d(2) = p%x(2, i) - p%x(2, j)
-                d(3) = p%x(3, i) - p%x(3, j)
-                r2 = d(1)**2 + d(2)**2 + d(3)**2
-                if (r2 >= support2) cycle
-                m = m + 1
-                r(m) = sqrt(r2)
-                mass(m) = p%m(j)
-                volume(m) = p%m(j) / p%rho(j)
+        allocate(r(n), w(n), mass(n), volume(n))
+        ! the new densities in a kept array (no fresh pages at every step)
+        if (allocated(kept_scratch%filtered)) then
+            if (size(kept_scratch%filtered) < p%n_owned) deallocate(kept_scratch%filtered)
+        end if
+        if (.not. allocated(kept_scratch%filtered)) &
+            allocate(kept_scratch%filtered(max(p%n_owned, 1)))
+        associate (filtered => kept_scratch%filtered)
+            do i = 1, p%n_owned
+                filtered(i) = p%rho(i)
+                if (p%kind(i) /= KIND_FLUID) cycle
+                if (other_level(p, i, level)) cycle
+                ! the partners within the support, then W of all of them in one kernel call
+                m = 0
+                do k = nl%start(i), nl%start(i + 1) - 1
+                    j = nl%index(k)
+                    if (repulsive_only(phys, p%kind(j))) cycle
+                    d(1) = p%x(1, i) - p%x(1, j)
+                    d(2) = p%x(2, i) - p%x(2, j)
+                    d(3) = p%x(3, i) - p%x(3, j)
+                    r2 = d(1)**2 + d(2)**2 + d(3)**2
+                    if (r2 >= support2) cycle
+                    m = m + 1
+                    r(m) = sqrt(r2)
+                    mass(m) = p%m(j)
+                    volume(m) = p%m(j) / p%rho(j)
+                end do
+                call phys%kernel%w_many(r(1:m), w(1:m))
+                num = p%m(i) * w0 + sum(mass(1:m) * w(1:m))
+                den = p%m(i) / p%rho(i) * w0 + sum(volume(1:m) * w(1:m))
+                filtered(i) = num / den
             end do
-            call phys%kernel%w_many(r(1:m), w(1:m))
-            num = p%m(i) * w0 + sum(mass(1:m) * w(1:m))
-            den = p%m(i) / p%rho(i) * w0 + sum(volume(1:m) * w(1:m))
-            filtered(i) = num / den
-        end do
-        p%rho(1:p%n_owned) = filtered
+            p%rho(1:p%n_owned) = filtered(1:p%n_owned)
+        end associate
     end subroutine shepard_density
 
     !> Strain rate (thesis eq. 2.16, corrected) of owned particles:
@@ -724,6 +733,7 @@ contains
         if (allocated(kept_scratch%handed)) deallocate(kept_scratch%handed)
         if (allocated(kept_scratch%paired)) deallocate(kept_scratch%paired)
         if (allocated(kept_scratch%flows)) deallocate(kept_scratch%flows)
+        if (allocated(kept_scratch%filtered)) deallocate(kept_scratch%filtered)
     end subroutine release_rates_scratch
 
     !> compute_rates' kept arrays (kept_scratch), at least n particles long; the caller hands
