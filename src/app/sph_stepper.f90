@@ -635,26 +635,33 @@ contains
         call corrector(sim, dt)
         call shift(sim, env, dt)
         call migrate_and_rebuild(sim, env)
-        call filter_density(sim, env)
+        call filter_density(sim, env, sim%step)
         call remesh_if_due(sim, env)
         call update_transition_zones(sim, env)
         call check_health(sim, env)
     end subroutine predictor_corrector_step
 
-    !> &numerics density_filter = 'shepard': every density_filter_interval steps, after the
-    !> step's migration (ghosts and list current), the real fluid's densities are filtered
-    !> level by level (sph_rates shepard_density) and the ghosts and pressures follow.
-    subroutine filter_density(sim, env)
+    !> &numerics density_filter = 'shepard' in step number `step` (every
+    !> density_filter_interval steps), with ghosts and list current: the real fluid's
+    !> densities filtered level by level (sph_rates shepard_density), the ghosts and pressures
+    !> following. The predictor-corrector filters the step's end state (after its migration);
+    !> Verlet the drifted state before its rate evaluation, and the change goes into the
+    !> half-kicked densities too, from which the kick completes the step (one level only:
+    !> refused with &region, whose Verlet steps level by level).
+    subroutine filter_density(sim, env, step)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
+        integer(i8), intent(in) :: step
         integer :: lv, previous
         if (sim%phys%density_filter_interval <= 0) return
-        if (mod(sim%step, int(sim%phys%density_filter_interval, i8)) /= 0_i8) return
+        if (mod(step, int(sim%phys%density_filter_interval, i8)) /= 0_i8) return
         call timers_enter(sim%timers, TIMER_OTHER, previous)
         if (multires(sim)) then
             do lv = 0, sim%zones%n_levels - 1
                 call shepard_density(sim%level_phys(lv), sim%p, sim%nl, lv)
             end do
+        else if (sim%verlet) then
+            call shepard_density(sim%phys, sim%p, sim%nl, also=sim%p%rho_old)
         else
             call shepard_density(sim%phys, sim%p, sim%nl)
         end if
@@ -688,6 +695,7 @@ contains
         call verlet_drift(sim%p, dt, integrated_density(sim), sim%step_moved)
         call refresh_halo(sim, env)
         call prepare_boundaries(sim, dt)
+        call filter_density(sim, env, sim%step + 1_i8)
         call evaluate_rates(sim, env)
         call verlet_kick(sim%p, dt, integrated_density(sim))
         sim%time = sim%time + dt

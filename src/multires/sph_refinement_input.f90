@@ -253,6 +253,11 @@ contains
             call num_grp%error('shifting', "'" // trim(num%shifting) // "' with " // &
             "integrator = 'verlet'" // not_yet // "; use shifting = 'none' or integrator = " // &
             "'predictor_corrector'")
+        ! nor a density filter
+        if (trim(num%integrator) == 'verlet' .and. trim(num%density_filter) /= 'none') &
+            call num_grp%error('density_filter', "'" // trim(num%density_filter) // &
+            "' with integrator = 'verlet'" // not_yet // "; use density_filter = 'none' " // &
+            "or integrator = 'predictor_corrector'")
 
         do r = 1, size(regions)
             if (regions(r)%level >= 2) call check_nesting(r)

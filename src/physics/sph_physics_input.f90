@@ -172,10 +172,6 @@ contains
             trim(num%density_method) /= 'continuity') call grp%error('density_filter', &
                 "'shepard' filters the integrated density; it works with density_method = " // &
                 "'continuity' only")
-        if (trim(num%density_filter) == 'shepard' .and. &
-            trim(num%integrator) /= 'predictor_corrector') call grp%error('density_filter', &
-                "'shepard' works with integrator = 'predictor_corrector' only (Verlet " // &
-                "keeps the rates of the densities it evaluated them with)")
         if (trim(num%shifting) /= 'none' .and. trim(num%wall_model) /= 'morris') &
             call grp%error('shifting', "'lind' works with wall_model = 'morris' only (the " // &
                 "wall particles must fill the support to complete the concentration field)")

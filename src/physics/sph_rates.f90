@@ -215,11 +215,13 @@ contains
     !> uniform density is kept exactly on any arrangement, where the kernel sum alone (and
     !> the continuity equation, which follows it) changes as rows of a lattice slide past
     !> each other (physics.md, "Known behaviour"). Walls and virtual particles keep theirs.
-    subroutine shepard_density(phys, p, nl, level)
+    !> also: the same change is added to it (Verlet's half-kicked densities, rho_old).
+    subroutine shepard_density(phys, p, nl, level, also)
         type(physics_t), intent(in) :: phys
         type(particles_t), intent(inout) :: p
         type(neighbour_list_t), intent(in) :: nl
         integer, intent(in), optional :: level
+        real(wp), intent(inout), optional :: also(:)
         integer :: i, k, j, n, m
         real(wp) :: w0, num, den, d(3), r2, support2
         real(wp), allocatable :: r(:), w(:), mass(:), volume(:)
@@ -259,6 +261,8 @@ contains
                 den = p%m(i) / p%rho(i) * w0 + sum(volume(1:m) * w(1:m))
                 filtered(i) = num / den
             end do
+            if (present(also)) also(1:p%n_owned) = also(1:p%n_owned) + &
+                (filtered(1:p%n_owned) - p%rho(1:p%n_owned))
             p%rho(1:p%n_owned) = filtered(1:p%n_owned)
         end associate
     end subroutine shepard_density
