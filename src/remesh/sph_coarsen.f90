@@ -121,7 +121,8 @@ contains
         integer, allocatable :: astart(:), adj(:), order(:)
         real(wp), allocatable :: adj_r2(:)
         integer(i8), allocatable :: h(:)
-        logical, allocatable :: seen(:), match(:)
+        logical, allocatable :: match(:)
+        integer(i8) :: seen
         integer :: i, k, p, j, t
 
         if (present(stat)) stat = 0
@@ -162,20 +163,18 @@ contains
         if (present(given_match)) match = given_match(1:n)
         call sort_order(order)
 
+        ! the tags seen among the tagged neighbours as the bits of one integer (tags 1-64;
+        ! 65 when all are taken): the lowest absent tag is its lowest clear bit
         tag = 0
-        allocate(seen(0:64))
         do k = 1, n
             i = order(k)
-            seen = .false.
+            seen = 0_i8
             do p = astart(i), astart(i + 1) - 1
                 j = adj(p)
-                if (tag(j) > 0 .and. tag(j) <= 64) seen(tag(j)) = .true.
+                if (tag(j) > 0 .and. tag(j) <= 64) seen = ibset(seen, tag(j) - 1)
             end do
-            t = 1
-            do while (t <= 64)
-                if (.not. seen(t)) exit
-                t = t + 1
-            end do
+            t = 65
+            if (seen /= -1_i8) t = trailz(not(seen)) + 1
             tag(i) = t
         end do
         n_kept = count(tag(1:n) == KEPT_CLASS)
@@ -286,7 +285,7 @@ contains
                         end do
                         if (.not. in_row) cycle
                         u = d(ax) / dx
-                        dev_sum(ax) = dev_sum(ax) + nint((u - anint(u)) * scale, i8)
+                        dev_sum(ax) = dev_sum(ax) + nearest_i8((u - round_half_away(u)) * scale)
                         row_count(ax) = row_count(ax) + 1
                     end do
                     r2 = sum(d(1:dim)**2)
@@ -330,6 +329,21 @@ contains
             error stop 'coarsen_select: invalid input'
         end subroutine fail
     end subroutine coarsen_select
+
+    !> anint(u) (halves away from zero) without the library call that gfortran makes of it
+    !> (about 5 % of a coarsening's selection); exact for |u| < 2^52.
+    pure elemental real(wp) function round_half_away(u) result(r)
+        real(wp), intent(in) :: u
+        r = aint(u + sign(0.5_wp, u))
+        ! u + 0.5 rounds up to the next integer when u is the largest double below a half
+        if (abs(r - u) > 0.5_wp) r = r - sign(1.0_wp, u)
+    end function round_half_away
+
+    !> nint(u, i8), as round_half_away.
+    pure elemental integer(i8) function nearest_i8(u)
+        real(wp), intent(in) :: u
+        nearest_i8 = int(round_half_away(u), i8)
+    end function nearest_i8
 
     !> Does an id occur twice among ids(1:n)? An open-addressing table of 2^k >= 2 n slots,
     !> probed from each id's hash h (id_hash): O(n), where sorting took a fifth of a
