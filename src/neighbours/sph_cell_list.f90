@@ -7,7 +7,7 @@ module sph_cell_list
     implicit none
     private
     public :: neighbour_list_t, build_neighbour_list, brute_force_neighbours, cell_sort_order
-    public :: build_cross_list, cell_grid_t, bin_particles, cell_candidates
+    public :: build_cross_list, cell_grid_t, bin_particles, cell_runs
 
     !> The binning of one build: kept with the list so a rebuild reuses its storage.
     !> Cell coordinates are taken along the axes in the order `axis`: the axis with the
@@ -168,34 +168,29 @@ contains
         call new_generation(nl)
     end subroutine build_cross_list
 
-    !> cand(1:n_cand): the binned points in the 3^dim cells around xi, in the order of
-    !> build_cross_list's rows (so a caller that filters them itself visits the pairs in the
-    !> same order, without storing a list); cand grows when it is too short.
-    subroutine cell_candidates(grid, xi, cand, n_cand)
+    !> The binned points in the cells within `reach` cells of xi, as runs of the cell order:
+    !> grid%sorted(first(r):last(r)), r = 1..n_runs, one run per row of cells, in the order
+    !> of build_cross_list's rows. A caller that keeps its points' data in the cell order (copied once
+    !> after bin_particles) then reads each run contiguously. first and last need room for
+    !> (2 reach + 1)^(dim - 1) runs.
+    pure subroutine cell_runs(grid, xi, reach, first, last, n_runs)
         type(cell_grid_t), intent(in) :: grid
         real(wp), intent(in) :: xi(3)
-        integer, allocatable, intent(inout) :: cand(:)
-        integer, intent(out) :: n_cand
-        integer :: lo(3), hi(3), b, cz, first, last, run
-        integer, allocatable :: bigger(:)
-        if (.not. allocated(cand)) allocate(cand(64))
-        n_cand = 0
-        call scan_box(grid, xi, lo, hi)
+        integer, intent(in) :: reach
+        integer, intent(out) :: first(:), last(:), n_runs
+        integer :: lo(3), hi(3), b, cz, f, l
+        n_runs = 0
+        call scan_box(grid, xi, lo, hi, reach)
         do cz = lo(3), hi(3)
             do b = lo(2), hi(2)
-                call row_run(grid, b, cz, lo, hi, first, last)
-                run = last - first + 1
-                if (run <= 0) cycle
-                if (n_cand + run > size(cand)) then
-                    allocate(bigger(2 * (n_cand + run)))
-                    bigger(1:n_cand) = cand(1:n_cand)
-                    call move_alloc(bigger, cand)
-                end if
-                cand(n_cand + 1:n_cand + run) = grid%sorted(first:last)
-                n_cand = n_cand + run
+                call row_run(grid, b, cz, lo, hi, f, l)
+                if (l < f) cycle
+                n_runs = n_runs + 1
+                first(n_runs) = f
+                last(n_runs) = l
             end do
         end do
-    end subroutine cell_candidates
+    end subroutine cell_runs
 
     !> Room for the rows of n_query queries (an initial guess of per_query pairs each).
     subroutine reserve_rows(nl, n_query, per_query)
@@ -209,16 +204,20 @@ contains
         if (.not. allocated(nl%index)) allocate(nl%index(max(64, per_query * n_query)))
     end subroutine reserve_rows
 
-    !> The cells a query at xi scans: its own and the neighbours along each axis, lo:hi.
-    pure subroutine scan_box(grid, xi, lo, hi)
+    !> The cells a query at xi scans: its own and `reach` (default 1) more on each side
+    !> along each axis, lo:hi.
+    pure subroutine scan_box(grid, xi, lo, hi, reach)
         type(cell_grid_t), intent(in) :: grid
         real(wp), intent(in) :: xi(3)
         integer, intent(out) :: lo(3), hi(3)
-        integer :: c(3)
+        integer, intent(in), optional :: reach
+        integer :: c(3), r
+        r = 1
+        if (present(reach)) r = reach
         c = cell_coords(grid, xi)
         lo = 1; hi = 1
-        lo(1:grid%dim) = max(c(1:grid%dim) - 1, 1)
-        hi(1:grid%dim) = min(c(1:grid%dim) + 1, grid%ncell(1:grid%dim))
+        lo(1:grid%dim) = max(c(1:grid%dim) - r, 1)
+        hi(1:grid%dim) = min(c(1:grid%dim) + r, grid%ncell(1:grid%dim))
     end subroutine scan_box
 
     !> The cells lo(1):hi(1) of row (b, cz) are consecutive: one run first:last of sorted.
@@ -258,7 +257,7 @@ contains
     end function projected_pairs
 
     !> Stable counting sort of particles into cells of at least `cell_size` covering their
-    !> bounding box (also for cell_candidates). The grid's arrays are reused when they are
+    !> bounding box (also for cell_runs). The grid's arrays are reused when they are
     !> large enough. With members, only the particles members(1:n) are binned (sorted holds
     !> their indices into x).
     subroutine bin_particles(x, n, dim, cell_size, grid, members)

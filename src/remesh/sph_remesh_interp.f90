@@ -52,7 +52,7 @@
 !> particles and correct momentum with global sums. remesh_transfer is the three in one.
 module sph_remesh_interp
     use sph_kinds, only: wp
-    use sph_cell_list, only: cell_grid_t, bin_particles, cell_candidates
+    use sph_cell_list, only: cell_grid_t, bin_particles, cell_runs
     use sph_interpolation_kernels, only: INTERP_M4, interp_support
     implicit none
     private
@@ -137,88 +137,105 @@ contains
         integer, intent(out) :: n_mass_fallback
         !> an isolated old particle's one pair: negligible in its target's velocity moments
         real(wp), parameter :: ISOLATED_WEIGHT = 1.0e-30_wp, ISOLATED_REACH = 4.0_wp
-        ! the columns (per new particle, packed: a pair's updates touch four cache lines of
-        ! one column instead of eight arrays): mass, m e and volume handed on, the velocity
+        ! the columns (per new particle, packed: a pair's updates touch a few cache lines of
+        ! one column instead of many arrays): mass, m e and volume handed on, the velocity
         ! interpolant's moments (s0, s1, s2) and the sums sum u v (va) and sum u d v^T (vb)
         ! that give the corrected interpolant in one pass
-        integer :: a_va, a_s2, a_vb
-        ! per old particle: the new particles in its cells, and its pairs (offset / h, base
-        ! weight, new particle)
-        real(wp), allocatable :: dl(:, :), wl(:), cw(:)
-        integer, allocatable :: al(:), cand(:)
+        ! per old particle: the candidates (new particles in its cells) with their offsets / h
+        ! and base weights (cd, cwt), then its pairs (those of positive weight: dl, wl, al)
+        real(wp), allocatable :: dl(:, :), wl(:), cw(:), ys(:, :), cd(:, :), cwt(:)
+        integer, allocatable :: al(:), first(:), last(:)
         type(cell_grid_t) :: grid
-        integer :: i, j, k, p, c, q, nloc, lost, n_cand
-        real(wp) :: d(3), f, beta(3), t0(3), t1(3, 3), u, vj, xj(3), inv_h
+        integer :: j, q, r, p, nloc, lost, n_cand, n_runs
+        real(wp) :: t0(3), t1(3, 3), beta(3), xj(3), inv_h, total
         logical :: ok
 
         stat = 0
         errmsg = ''
         acc(:, 1:n_new) = 0.0_wp
-        ! old-new pairs: the new particles binned in cells of M4's support half-width 2 h,
-        ! each old particle's candidates filtered by the weight itself (zero outside the
-        ! cube), no pair list stored
-        call bin_particles(x_new, n_new, dim, interp_support(INTERP_M4) * h, grid)
-        allocate(cand(64), dl(3, 64), wl(64), cw(64), al(64))
-        a_va = A_S1 + dim
-        a_s2 = a_va + dim
-        a_vb = a_s2 + dim * dim
+        if (dim /= 2 .and. dim /= 3) error stop 'transfer_accumulate: dim must be 2 or 3'
+        ! old-new pairs: the new particles binned in cells of half M4's support half-width
+        ! 2 h, each old particle's candidates in the 5^dim cells around it filtered by the
+        ! weight itself (zero outside the cube), no pair list stored. The new positions are
+        ! copied in the cell order, one array per axis: a run of candidates is then read
+        ! contiguously and its loops vectorise. (The columns stay in the caller's order: a
+        ! copy in the cell order, added back at the end, cost more in allocation than its
+        ! locality saved for new particles that come about in space order, as in id order.)
+        call bin_particles(x_new, n_new, dim, 0.5_wp * interp_support(INTERP_M4) * h, grid)
+        allocate(ys(max(n_new, 1), 3))
+        ys = 0.0_wp
+        do q = 1, n_new
+            ys(q, 1:dim) = x_new(1:dim, grid%sorted(q))
+        end do
+        allocate(first(25), last(25), dl(3, 256), wl(256), cw(256), al(256), cd(256, 3), &
+            cwt(256))
         inv_h = 1.0_wp / h
         lost = 0
         n_mass_fallback = 0
         do j = 1, n_old
             xj = 0.0_wp
             xj(1:dim) = x_old(1:dim, j)
-            call cell_candidates(grid, xj, cand, n_cand)
+            call cell_runs(grid, xj, 2, first, last, n_runs)
+            n_cand = sum(last(1:n_runs) - first(1:n_runs) + 1)
             if (n_cand > size(wl)) then
-                deallocate(dl, wl, cw, al)
-                allocate(dl(3, n_cand), wl(n_cand), cw(n_cand), al(n_cand))
+                deallocate(dl, wl, cw, al, cd, cwt)
+                allocate(dl(3, n_cand), wl(n_cand), cw(n_cand), al(n_cand), cd(n_cand, 3), &
+                    cwt(n_cand))
             end if
-            ! components written out and the weight without branches: most candidates lie
-            ! outside the cube, and the tests per axis were most of this loop's time
+            ! every candidate's offsets and weight in loops without branches over contiguous
+            ! runs (the compiler vectorises them; most candidates lie outside the cube), then
+            ! the pairs (positive weight) compacted
+            p = 0
+            do r = 1, n_runs
+                do q = first(r), last(r)
+                    cd(p + q - first(r) + 1, 1) = (ys(q, 1) - xj(1)) * inv_h
+                    cd(p + q - first(r) + 1, 2) = (ys(q, 2) - xj(2)) * inv_h
+                    cd(p + q - first(r) + 1, 3) = (ys(q, 3) - xj(3)) * inv_h
+                end do
+                p = p + last(r) - first(r) + 1
+            end do
+            if (dim == 2) then
+                do p = 1, n_cand
+                    cwt(p) = m4_weight(cd(p, 1)) * m4_weight(cd(p, 2))
+                end do
+            else
+                do p = 1, n_cand
+                    cwt(p) = m4_weight(cd(p, 1)) * m4_weight(cd(p, 2)) * m4_weight(cd(p, 3))
+                end do
+            end if
             nloc = 0
-            do p = 1, n_cand
-                k = cand(p)
-                d(1) = (x_new(1, k) - xj(1)) * inv_h
-                d(2) = 0.0_wp
-                d(3) = 0.0_wp
-                if (dim > 1) d(2) = (x_new(2, k) - xj(2)) * inv_h
-                if (dim > 2) d(3) = (x_new(3, k) - xj(3)) * inv_h
-                f = m4_weight(d(1)) * m4_weight(d(2))
-                if (dim > 2) f = f * m4_weight(d(3))
-                if (dim == 1) f = m4_weight(d(1))
-                if (f <= 0.0_wp) cycle
-                nloc = nloc + 1
-                dl(:, nloc) = d
-                wl(nloc) = f
-                al(nloc) = k
+            p = 0
+            do r = 1, n_runs
+                do q = first(r), last(r)
+                    p = p + 1
+                    dl(:, nloc + 1) = cd(p, :)
+                    wl(nloc + 1) = cwt(p)
+                    al(nloc + 1) = grid%sorted(q)
+                    nloc = nloc + merge(1, 0, cwt(p) > 0.0_wp)
+                end do
             end do
             if (nloc == 0) then
                 ! alone in a void: everything to the nearest new particle (a fallback)
-                call nearest_new(j, al(1), ok)
+                call nearest_new(j, q, ok)
                 if (.not. ok) then
                     lost = lost + 1
                     cycle
                 end if
+                al(1) = q
                 nloc = 1
                 dl(:, 1) = 0.0_wp
-                dl(1:dim, 1) = (x_new(1:dim, al(1)) - x_old(1:dim, j)) / h
+                dl(1:dim, 1) = (x_new(1:dim, q) - x_old(1:dim, j)) / h
                 wl(1) = ISOLATED_WEIGHT
                 cw(1) = 1.0_wp
                 n_mass_fallback = n_mass_fallback + 1
             else
                 ! first-order corrected weights: the centroid kept (module header)
-                t0 = 0.0_wp
-                t1 = 0.0_wp
-                do p = 1, nloc
-                    t0 = t0 + wl(p) * dl(:, p)
-                    do c = 1, dim
-                        t1(1:dim, c) = t1(1:dim, c) + wl(p) * dl(1:dim, p) * dl(c, p)
-                    end do
-                end do
+                call weight_moments(dim, nloc, wl, dl, t0, t1)
                 call solve_small(dim, t1, -t0, beta, ok)
                 if (ok) then
                     do p = 1, nloc
-                        cw(p) = wl(p) * (1.0_wp + dot_product(beta(1:dim), dl(1:dim, p)))
+                        cw(p) = wl(p) * (1.0_wp + beta(1) * dl(1, p) + beta(2) * dl(2, p) + &
+                            beta(3) * dl(3, p))
                     end do
                     ok = all(cw(1:nloc) >= 0.0_wp) .and. sum(cw(1:nloc)) > 0.0_wp
                 end if
@@ -226,29 +243,16 @@ contains
                     n_mass_fallback = n_mass_fallback + 1
                     cw(1:nloc) = wl(1:nloc)
                 end if
-                cw(1:nloc) = cw(1:nloc) / sum(cw(1:nloc))
+                total = sum(cw(1:nloc))
+                cw(1:nloc) = cw(1:nloc) / total
             end if
-            vj = m_old(j) / rho_old(j)
-            do p = 1, nloc
-                i = al(p)
-                ! extensive quantities handed on
-                acc(A_M, i) = acc(A_M, i) + cw(p) * m_old(j)
-                acc(A_E, i) = acc(A_E, i) + cw(p) * m_old(j) * e_old(j)
-                acc(A_VOL, i) = acc(A_VOL, i) + cw(p) * vj
-                ! velocity moments at the new particle, offsets from it (-d) and u = W V
-                u = wl(p) * vj
-                d = -dl(:, p)
-                acc(A_S0, i) = acc(A_S0, i) + u
-                acc(A_S1:A_S1 + dim - 1, i) = acc(A_S1:A_S1 + dim - 1, i) + u * d(1:dim)
-                acc(a_va:a_va + dim - 1, i) = acc(a_va:a_va + dim - 1, i) + u * v_old(1:dim, j)
-                do c = 1, dim
-                    q = dim * (c - 1)
-                    acc(a_s2 + q:a_s2 + q + dim - 1, i) = acc(a_s2 + q:a_s2 + q + dim - 1, i) &
-                        + u * d(1:dim) * d(c)
-                    acc(a_vb + q:a_vb + q + dim - 1, i) = acc(a_vb + q:a_vb + q + dim - 1, i) &
-                        + u * d(c) * v_old(1:dim, j)
-                end do
-            end do
+            if (dim == 2) then
+                call scatter_2d(nloc, al, cw, wl, dl, m_old(j), e_old(j), rho_old(j), &
+                    v_old(1:2, j), acc)
+            else
+                call scatter_3d(nloc, al, cw, wl, dl, m_old(j), e_old(j), rho_old(j), &
+                    v_old(1:3, j), acc)
+            end if
         end do
         if (lost > 0) then
             write(errmsg, '(a, i0, a)') 'remesh_transfer: ', lost, &
@@ -342,15 +346,116 @@ contains
         end do
     end subroutine transfer_finish
 
+    !> The moments of one old particle's base weights over its pairs: t0 = sum w d,
+    !> t1 = sum w d d^T (offsets d / h; the third component is zero in 2D).
+    pure subroutine weight_moments(dim, n, w, d, t0, t1)
+        integer, intent(in) :: dim, n
+        real(wp), intent(in) :: w(:), d(:, :)
+        real(wp), intent(out) :: t0(3), t1(3, 3)
+        integer :: p
+        real(wp) :: a1, a2, a3
+        t0 = 0.0_wp
+        t1 = 0.0_wp
+        do p = 1, n
+            a1 = w(p) * d(1, p)
+            a2 = w(p) * d(2, p)
+            a3 = w(p) * d(3, p)
+            t0(1) = t0(1) + a1
+            t0(2) = t0(2) + a2
+            t0(3) = t0(3) + a3
+            t1(1, 1) = t1(1, 1) + a1 * d(1, p)
+            t1(2, 1) = t1(2, 1) + a2 * d(1, p)
+            t1(3, 1) = t1(3, 1) + a3 * d(1, p)
+            t1(2, 2) = t1(2, 2) + a2 * d(2, p)
+            t1(3, 2) = t1(3, 2) + a3 * d(2, p)
+            t1(3, 3) = t1(3, 3) + a3 * d(3, p)
+        end do
+        t1(1, 2) = t1(2, 1)
+        t1(1, 3) = t1(3, 1)
+        t1(2, 3) = t1(3, 2)
+        if (dim == 2) then
+            t0(3) = 0.0_wp
+            t1(3, :) = 0.0_wp
+            t1(:, 3) = 0.0_wp
+        end if
+    end subroutine weight_moments
+
+    !> One old particle's sums (mass m, energy e, density rho, velocity v) added into the
+    !> 2D columns of its pairs al(1:n): the extensive quantities with the normalised weights
+    !> cw, the velocity moments with u = w V at the new particle (offset -d from it). Rows as
+    !> transfer_rows: M, E, VOL, S0, S1 (2), va (2), s2 (2 x 2), vb (2 x 2), written out (acc
+    !> of explicit shape: the rows at fixed offsets).
+    pure subroutine scatter_2d(n, al, cw, w, d, m, e, rho, v, acc)
+        integer, intent(in) :: n, al(:)
+        real(wp), intent(in) :: cw(:), w(:), d(:, :), m, e, rho, v(2)
+        real(wp), intent(inout) :: acc(16, *)
+        integer :: p, i
+        real(wp) :: vol, me, u, ex, ey, ux, uy
+        vol = m / rho
+        me = m * e
+        do p = 1, n
+            i = al(p)
+            u = w(p) * vol
+            ex = -d(1, p)
+            ey = -d(2, p)
+            ux = u * ex
+            uy = u * ey
+            acc(1, i) = acc(1, i) + cw(p) * m
+            acc(2, i) = acc(2, i) + cw(p) * me
+            acc(3, i) = acc(3, i) + cw(p) * vol
+            acc(4, i) = acc(4, i) + u
+            acc(5, i) = acc(5, i) + ux
+            acc(6, i) = acc(6, i) + uy
+            acc(7, i) = acc(7, i) + u * v(1)
+            acc(8, i) = acc(8, i) + u * v(2)
+            acc(9, i) = acc(9, i) + ux * ex
+            acc(10, i) = acc(10, i) + uy * ex
+            acc(11, i) = acc(11, i) + ux * ey
+            acc(12, i) = acc(12, i) + uy * ey
+            acc(13, i) = acc(13, i) + ux * v(1)
+            acc(14, i) = acc(14, i) + ux * v(2)
+            acc(15, i) = acc(15, i) + uy * v(1)
+            acc(16, i) = acc(16, i) + uy * v(2)
+        end do
+    end subroutine scatter_2d
+
+    !> scatter_2d in 3D: M, E, VOL, S0, S1 (3), va (3), s2 (3 x 3), vb (3 x 3).
+    pure subroutine scatter_3d(n, al, cw, w, d, m, e, rho, v, acc)
+        integer, intent(in) :: n, al(:)
+        real(wp), intent(in) :: cw(:), w(:), d(:, :), m, e, rho, v(3)
+        real(wp), intent(inout) :: acc(28, *)
+        integer :: p, i, c
+        real(wp) :: vol, me, u, ud(3)
+        vol = m / rho
+        me = m * e
+        do p = 1, n
+            i = al(p)
+            u = w(p) * vol
+            ud = -u * d(:, p)
+            acc(1, i) = acc(1, i) + cw(p) * m
+            acc(2, i) = acc(2, i) + cw(p) * me
+            acc(3, i) = acc(3, i) + cw(p) * vol
+            acc(4, i) = acc(4, i) + u
+            acc(5:7, i) = acc(5:7, i) + ud
+            acc(8:10, i) = acc(8:10, i) + u * v
+            do c = 1, 3
+                acc(8 + 3 * c:10 + 3 * c, i) = acc(8 + 3 * c:10 + 3 * c, i) - ud * d(c, p)
+                acc(17 + 3 * c:19 + 3 * c, i) = acc(17 + 3 * c:19 + 3 * c, i) - d(c, p) * u * v
+            end do
+        end do
+    end subroutine scatter_3d
+
     !> The cubic B-spline M4 (sph_interpolation_kernels' m4_bspline), here so that the
-    !> transfer's pair loop inlines it: 2/3 - s^2 + |s|^3/2 (|s| < 1), (2 - |s|)^3/6 (< 2).
-    !> (Both pieces evaluated and one chosen, no branch; beyond |s| = 2 the second is 0.)
-    pure real(wp) function m4_weight(s) result(w)
+    !> transfer's pair loop inlines it: 2/3 - s^2 + |s|^3/2 (|s| < 1), (2 - |s|)^3/6 (< 2),
+    !> in the truncated-power form ((2 - |s|)_+^3 - 4 (1 - |s|)_+^3) / 6: no branch, so the
+    !> candidates' loop vectorises.
+    pure elemental real(wp) function m4_weight(s) result(w)
         real(wp), intent(in) :: s
-        real(wp) :: a, b
+        real(wp) :: a, b, c
         a = abs(s)
         b = max(2.0_wp - a, 0.0_wp)
-        w = merge(2.0_wp / 3.0_wp - a * a + 0.5_wp * a * a * a, b * b * b / 6.0_wp, a < 1.0_wp)
+        c = max(1.0_wp - a, 0.0_wp)
+        w = (b * b * b - 4.0_wp * c * c * c) * (1.0_wp / 6.0_wp)
     end function m4_weight
 
     !> Solve the dim x dim system m x = r by Gaussian elimination with partial pivoting;
