@@ -51,27 +51,34 @@ contains
     end subroutine new_generation
 
     !> Neighbours within `radius` of the first n_query particles among the first n_total.
-    !> Each query scans its 3^dim cells row by row: the cells of a row are consecutive in the
-    !> cell order, so a row is one run of `sorted`. Rows and cells are visited in the cell
-    !> order (cell_grid_t) and particles within a cell by index, so the list order is
-    !> reproducible.
-    !> Resolution levels (multi-resolution runs): with level (of every particle) and
-    !> level_radius(0:), a particle's neighbours are the particles of its own level within
-    !> that level's radius; each level is binned in its own grid with its own cell size, so a
-    !> fine particle scans fine cells only.
-    subroutine build_neighbour_list(x, n_total, n_query, dim, radius, nl, level, level_radius)
+    !> The particles are binned in cells of radius / reach (reach: default 1) and each query
+    !> scans the (2 reach + 1)^dim cells around its own, row by row: the cells of a row are
+    !> consecutive in the cell order, so a row is one run of `sorted`. Rows and cells are
+    !> visited in the cell order (cell_grid_t) and particles within a cell by index, so the
+    !> list order is reproducible. reach = 2 scans 6.25 r^2 of candidates in 2D and 15.6 r^3
+    !> in 3D instead of 9 r^2 and 27 r^3 (for pi r^2 and 4.2 r^3 of pairs): a quarter less
+    !> time in remeshing's lists, 35 % less in a 3D step's search. The time step keeps reach
+    !> 1: its pair sums follow the row order, and a chained run continues bit for bit only
+    !> while a list rebuilt at a checkpoint orders its rows as the reused one (finer cells
+    !> let more particles change cell between rebuilds: jobs_chain_under_stand_in_scheduler
+    !> then differed in the last bit).
+    subroutine build_neighbour_list(x, n_total, n_query, dim, radius, nl, level, level_radius, &
+            reach)
         real(wp), intent(in) :: x(:, :)
         integer, intent(in) :: n_total, n_query, dim
         real(wp), intent(in) :: radius
         type(neighbour_list_t), intent(inout) :: nl
         integer, intent(in), optional :: level(:)
         real(wp), intent(in), optional :: level_radius(0:)
-        integer :: i, j, k, lo(3), hi(3), b, cz, first, last, pairs, lv, n_levels
+        integer, intent(in), optional :: reach
+        integer :: i, j, k, lo(3), hi(3), b, cz, first, last, pairs, lv, n_levels, cells
         real(wp) :: xi(3), d1, d2, d3
         real(wp), allocatable :: r2max(:)
         integer, allocatable :: members(:)
 
         call reserve_rows(nl, n_query, 40)
+        cells = 1
+        if (present(reach)) cells = reach
 
         n_levels = 1
         if (present(level)) n_levels = size(level_radius)
@@ -83,12 +90,12 @@ contains
         if (present(level)) then
             do lv = 0, n_levels - 1
                 members = pack([(i, i = 1, n_total)], level(1:n_total) == lv)
-                call bin_particles(x, size(members), dim, level_radius(lv), nl%grids(lv), &
-                    members)
+                call bin_particles(x, size(members), dim, level_radius(lv) / cells, &
+                    nl%grids(lv), members)
                 r2max(lv) = level_radius(lv)**2
             end do
         else
-            call bin_particles(x, n_total, dim, radius, nl%grids(0))
+            call bin_particles(x, n_total, dim, radius / cells, nl%grids(0))
             r2max(0) = radius * radius
         end if
         pairs = 0
@@ -98,7 +105,7 @@ contains
             if (present(level)) lv = level(i)
             associate (grid => nl%grids(lv))
                 xi = x(:, i)
-                call scan_box(grid, xi, lo, hi)
+                call scan_box(grid, xi, lo, hi, cells)
                 do cz = lo(3), hi(3)
                     do b = lo(2), hi(2)
                         call row_run(grid, b, cz, lo, hi, first, last)
@@ -170,9 +177,9 @@ contains
 
     !> The binned points in the cells within `reach` cells of xi, as runs of the cell order:
     !> grid%sorted(first(r):last(r)), r = 1..n_runs, one run per row of cells, in the order
-    !> of build_cross_list's rows. A caller that keeps its points' data in the cell order (copied once
-    !> after bin_particles) then reads each run contiguously. first and last need room for
-    !> (2 reach + 1)^(dim - 1) runs.
+    !> of build_cross_list's rows. A caller that keeps its points' data in the cell order
+    !> (copied once after bin_particles) then reads each run contiguously. first and last
+    !> need room for (2 reach + 1)^(dim - 1) runs.
     pure subroutine cell_runs(grid, xi, reach, first, last, n_runs)
         type(cell_grid_t), intent(in) :: grid
         real(wp), intent(in) :: xi(3)

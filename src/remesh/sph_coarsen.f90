@@ -266,7 +266,7 @@ contains
             logical :: in_row
             scale = 2.0_wp**DEV_BITS
             call with_periodic_images(dim, n, x, periodic, bx, r_row, xa, orig, ntot)
-            call build_neighbour_list(xa, ntot, n, dim, r_row, nl)
+            call build_neighbour_list(xa, ntot, n, dim, r_row, nl, reach=2)
             allocate(astart(n + 1), adj(max(nl%n_pairs, 1)), adj_r2(max(nl%n_pairs, 1)))
             m = 0
             do a = 1, n

@@ -300,7 +300,7 @@ contains
             if (periodic) bx = box
             ! candidates: midpoints of the old pairs in [EDGE_FACTOR, FILL_PAIR_MAX) dx
             call with_periodic_images(dim, n, x, periodic, bx, FILL_PAIR_MAX * dx, xo, oo, no)
-            call build_neighbour_list(xo, no, n, dim, FILL_PAIR_MAX * dx, nl)
+            call build_neighbour_list(xo, no, n, dim, FILL_PAIR_MAX * dx, nl, reach=2)
             allocate(yc(3, max(3 * nl%n_pairs, 1)), kc(2, max(3 * nl%n_pairs, 1)))
             nc = 0
             do i = 1, n
@@ -350,7 +350,7 @@ contains
             xall(:, n_new + 1:) = yc(:, 1:nc)
             call with_periodic_images(dim, n_new + nc, xall, periodic, bx, 0.5_wp * dx, xi, &
                 orig, ntot)
-            call build_neighbour_list(xi, ntot, n_new + nc, dim, 0.5_wp * dx, nl)
+            call build_neighbour_list(xi, ntot, n_new + nc, dim, 0.5_wp * dx, nl, reach=2)
             ! the midpoints alone when they reach want (they keep more of the flow's own
             ! spacing), with the quarter points otherwise
             allocate(allowed(nc))
@@ -423,7 +423,7 @@ contains
             bx = 0.0_wp
             if (periodic) bx = box
             call with_periodic_images(dim, n_new, x_new, periodic, bx, rmin, xi, orig, ntot)
-            call build_neighbour_list(xi, ntot, n_new, dim, rmin, nl)
+            call build_neighbour_list(xi, ntot, n_new, dim, rmin, nl, reach=2)
             state = undecided
             do while (any(state == undecided))
                 do i = 1, n_new
@@ -655,7 +655,7 @@ contains
             type(neighbour_list_t) :: nl
             integer :: i, m, t, ntot, j
             call with_periodic_images(dim, n, x, periodic, bx, rc, xa, orig, ntot)
-            call build_neighbour_list(xa, ntot, n, dim, rc, nl)
+            call build_neighbour_list(xa, ntot, n, dim, rc, nl, reach=2)
             allocate(astart(n + 1), adj(nl%n_pairs))
             m = 0
             do i = 1, n

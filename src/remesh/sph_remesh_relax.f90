@@ -77,7 +77,8 @@ contains
             real(wp), allocatable :: rs(:), unit(:, :), dw(:)
             integer :: a, p, b, m
             if (.not. holds_pairs(list)) then
-                call build_neighbour_list(y, ny, n, dim, 2.0_wp * h + RELAX_SKIN * dx, list%nl)
+                call build_neighbour_list(y, ny, n, dim, 2.0_wp * h + RELAX_SKIN * dx, list%nl, &
+                    reach=2)
                 list%y_ref = y(:, 1:ny)
                 list%ny = ny
             end if
