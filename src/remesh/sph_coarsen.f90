@@ -64,7 +64,7 @@
 !> unique (ties in the order are broken by id; a repeated id is refused).
 module sph_coarsen
     use sph_kinds, only: wp, i8
-    use sph_cell_list, only: neighbour_list_t, build_neighbour_list
+    use sph_cell_list, only: cell_grid_t, bin_particles, cell_runs
     use sph_remesh_images, only: with_periodic_images
     use sph_key_sort, only: sort_by_keys
     implicit none
@@ -79,6 +79,8 @@ module sph_coarsen
     !> Smallest fill radius (in dx: 0.4 of the new spacing 2 dx) and the bisection's steps.
     real(wp), parameter :: R_FILL_MIN = 0.8_wp
     integer, parameter :: FILL_STEPS = 20
+    !> The low 16 bits (the limbs of id_hash's arithmetic modulo 2^64).
+    integer(i8), parameter :: LIMB = int(z'FFFF', i8)
 
 contains
 
@@ -255,45 +257,67 @@ contains
         end subroutine fill
 
         !> Tagging neighbours within r_conflict (through periodic images if periodic),
-        !> deduplicated, and the lattice parity match of every particle from its rows.
+        !> deduplicated, and the lattice parity match of every particle from its rows. The
+        !> pairs within r_row are visited straight from the cells (cells of r_row / 2, the
+        !> positions copied in the cell order), not through a stored neighbour list: the
+        !> list's 40 entries a particle were mostly new pages to touch, and a second pass.
         subroutine adjacency_and_parity()
-            real(wp), allocatable :: xa(:, :)
-            integer, allocatable :: orig(:)
-            type(neighbour_list_t) :: nl
-            integer :: a, m, s, ntot, b, ax, c, row_count(3)
+            real(wp), allocatable :: xa(:, :), ys(:, :), adj_r2_more(:)
+            integer, allocatable :: orig(:), adj_more(:)
+            type(cell_grid_t) :: grid
+            integer :: a, m, ntot, b, ax, row_count(3), q, r, n_runs, first(25), last(25)
             integer(i8) :: dev_sum(3)
-            real(wp) :: d(3), r2, u, scale
-            logical :: in_row
+            real(wp) :: d(3), r2, u, scale, half, rr2
+            logical :: in_row(3)
             scale = 2.0_wp**DEV_BITS
+            half = 0.5_wp * dx
+            rr2 = r_row * r_row
             call with_periodic_images(dim, n, x, periodic, bx, r_row, xa, orig, ntot)
-            call build_neighbour_list(xa, ntot, n, dim, r_row, nl, reach=2)
-            allocate(astart(n + 1), adj(max(nl%n_pairs, 1)), adj_r2(max(nl%n_pairs, 1)))
+            call bin_particles(xa, ntot, dim, 0.5_wp * r_row, grid)
+            allocate(ys(max(ntot, 1), 3))
+            do q = 1, ntot
+                ys(q, :) = xa(:, grid%sorted(q))
+            end do
+            ! about 8 (2D) or 18 (3D) tagging neighbours a particle; grown when short
+            allocate(astart(n + 1), adj(max(2 * 3**dim * n, 1)), adj_r2(max(2 * 3**dim * n, 1)))
             m = 0
             do a = 1, n
                 astart(a) = m + 1
                 dev_sum = 0_i8
                 row_count = 1
-                do s = nl%start(a), nl%start(a + 1) - 1
-                    b = orig(nl%index(s))
-                    if (b == a) cycle
-                    d = xa(:, nl%index(s)) - xa(:, a)
-                    d(dim + 1:) = 0.0_wp
-                    do ax = 1, dim
-                        in_row = .true.
-                        do c = 1, dim
-                            if (c /= ax .and. abs(d(c)) >= 0.5_wp * dx) in_row = .false.
+                call cell_runs(grid, xa(:, a), 2, first, last, n_runs)
+                do r = 1, n_runs
+                    do q = first(r), last(r)
+                        d = ys(q, :) - xa(:, a)
+                        d(dim + 1:) = 0.0_wp
+                        r2 = d(1)**2 + d(2)**2 + d(3)**2
+                        if (r2 >= rr2) cycle
+                        b = orig(grid%sorted(q))
+                        if (b == a) cycle
+                        ! a row along an axis: within half a spacing on the other axes
+                        in_row(1) = abs(d(2)) < half .and. abs(d(3)) < half
+                        in_row(2) = abs(d(1)) < half .and. abs(d(3)) < half
+                        in_row(3) = abs(d(1)) < half .and. abs(d(2)) < half
+                        do ax = 1, dim
+                            if (.not. in_row(ax)) cycle
+                            u = d(ax) / dx
+                            dev_sum(ax) = dev_sum(ax) + nearest_i8((u - round_half_away(u)) * &
+                                scale)
+                            row_count(ax) = row_count(ax) + 1
                         end do
-                        if (.not. in_row) cycle
-                        u = d(ax) / dx
-                        dev_sum(ax) = dev_sum(ax) + nearest_i8((u - round_half_away(u)) * scale)
-                        row_count(ax) = row_count(ax) + 1
+                        ! one image of b at most: two lie a box length (> 2 r_row) apart
+                        if (r2 >= rc2) cycle
+                        if (m == size(adj)) then
+                            allocate(adj_more(2 * m), adj_r2_more(2 * m))
+                            adj_more(1:m) = adj
+                            adj_r2_more(1:m) = adj_r2
+                            call move_alloc(adj_more, adj)
+                            call move_alloc(adj_r2_more, adj_r2)
+                        end if
+                        m = m + 1
+                        adj(m) = b
+                        adj_r2(m) = r2
                     end do
-                    r2 = sum(d(1:dim)**2)
-                    ! one image of b at most: two lie a box length (> 2 r_row) apart
-                    if (r2 >= rc2) cycle
-                    m = m + 1
-                    adj(m) = b
-                    adj_r2(m) = r2
                 end do
                 match(a) = .true.
                 do ax = 1, dim
@@ -395,47 +419,40 @@ contains
         v = ior(ior(shiftl(w3, 48), shiftl(w2, 32)), ior(shiftl(w1, 16), w0))
     end function from_hex
 
-    pure function limbs(v) result(l)
-        integer(i8), intent(in) :: v
-        integer(i8) :: l(0:3)
-        integer :: k
-        do k = 0, 3
-            l(k) = ibits(v, 16 * k, 16)
-        end do
-    end function limbs
-
-    !> Sum of 16-bit limb sums s(0:3) (each < 2^40) with carries, modulo 2^64.
-    pure integer(i8) function assemble(s) result(v)
-        integer(i8), intent(in) :: s(0:3)
-        integer(i8) :: c, w(0:3)
-        integer :: k
-        c = 0_i8
-        do k = 0, 3
-            w(k) = s(k) + c
-            c = shiftr(w(k), 16)
-            w(k) = iand(w(k), int(z'FFFF', i8))
-        end do
-        v = from_hex(w(3), w(2), w(1), w(0))
+    !> Sum of 16-bit limb sums s0..s3 (each < 2^40) with carries, modulo 2^64.
+    pure integer(i8) function assemble(s0, s1, s2, s3) result(v)
+        integer(i8), intent(in) :: s0, s1, s2, s3
+        integer(i8) :: w0, w1, w2, w3
+        w0 = iand(s0, LIMB)
+        w1 = s1 + shiftr(s0, 16)
+        w2 = s2 + shiftr(w1, 16)
+        w3 = s3 + shiftr(w2, 16)
+        v = from_hex(iand(w3, LIMB), iand(w2, LIMB), iand(w1, LIMB), w0)
     end function assemble
 
     pure integer(i8) function add64(a, b)
         integer(i8), intent(in) :: a, b
-        add64 = assemble(limbs(a) + limbs(b))
+        add64 = assemble(iand(a, LIMB) + iand(b, LIMB), &
+            iand(shiftr(a, 16), LIMB) + iand(shiftr(b, 16), LIMB), &
+            iand(shiftr(a, 32), LIMB) + iand(shiftr(b, 32), LIMB), &
+            shiftr(a, 48) + shiftr(b, 48))
     end function add64
 
+    !> a b modulo 2^64 from the products of 16-bit limbs, written out (scalars: the limb
+    !> arrays of a loop version cost 150 ns a hash, a tenth of a coarsening's selection).
     pure integer(i8) function mul64(a, b)
         integer(i8), intent(in) :: a, b
-        integer(i8) :: la(0:3), lb(0:3), s(0:3)
-        integer :: i, j
-        la = limbs(a)
-        lb = limbs(b)
-        s = 0_i8
-        do i = 0, 3
-            do j = 0, 3 - i
-                ! each product < 2^32; the sums and the carries stay below 2^40
-                s(i + j) = s(i + j) + la(i) * lb(j)
-            end do
-        end do
-        mul64 = assemble(s)
+        integer(i8) :: a0, a1, a2, a3, b0, b1, b2, b3
+        a0 = iand(a, LIMB)
+        a1 = iand(shiftr(a, 16), LIMB)
+        a2 = iand(shiftr(a, 32), LIMB)
+        a3 = shiftr(a, 48)
+        b0 = iand(b, LIMB)
+        b1 = iand(shiftr(b, 16), LIMB)
+        b2 = iand(shiftr(b, 32), LIMB)
+        b3 = shiftr(b, 48)
+        ! each product < 2^32; the sums and the carries stay below 2^40
+        mul64 = assemble(a0 * b0, a0 * b1 + a1 * b0, a0 * b2 + a1 * b1 + a2 * b0, &
+            a0 * b3 + a1 * b2 + a2 * b1 + a3 * b0)
     end function mul64
 end module sph_coarsen
