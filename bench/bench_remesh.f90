@@ -1,7 +1,9 @@
-!> Benchmark of full-domain remeshing (issue 10): one refine and one coarsen pass of a 2D
-!> periodic box of about 10^5 fluid particles (a lattice, stepped a few times), against
-!> the time step of the same particles. Prints seconds, microseconds per particle and the
-!> ratio to one step (target: at most 3 steps per pass).
+!> Benchmark of full-domain remeshing (issue 10): refine, coarsen and same-level passes of a
+!> 2D periodic box of about 10^5 fluid particles (a lattice, stepped a few times), against the
+!> time step of the same particles before the pass and of the new particles after it. Each
+!> mode runs REPS times on a fresh set; the table gives medians (the pass's range in
+!> brackets): seconds, microseconds per particle and the pass in steps before (the target:
+!> at most 3 steps) and after.
 !>   mpirun -np N build/bin/sphremesh_bench_remesh [n]    (n x n particles, default 316)
 program bench_remesh
     use sph_kinds, only: wp, i8
@@ -12,57 +14,96 @@ program bench_remesh
     use mpi_f08, only: MPI_Finalize, MPI_Barrier, MPI_Wtime
     implicit none
 
+    integer, parameter :: REPS = 3
+    character(len=*), parameter :: ROW = '(a,a8,i12,a,i10,es14.3,es14.3,a,es9.2,a,es9.2,a,' // &
+        'f11.3,2f17.2)'
     type(mpi_env_t) :: env
-    integer :: n, ierr, mode
+    integer :: n, ierr, mode, rep
     character(len=8), parameter :: names(3) = [character(len=8) :: 'refine', 'coarsen', 'same']
-    real(wp) :: step_seconds, pass_seconds
+    real(wp) :: before(REPS), pass(REPS), after(REPS)
     integer(i8) :: n_before, n_after
 
     n = 316
     call bench_start(env, n)
     if (env%rank == 0) then
-        write(*, '(a,i0,a)') '# sphremesh remeshing benchmark, ', env%nranks, ' rank(s)'
-        write(*, '(a)') '# pass      particles before -> after   step [s]   pass [s]' // &
-            '   us/particle   pass/step'
+        write(*, '(a,i0,a,i0,a)') '# sphremesh remeshing benchmark, ', env%nranks, &
+            ' rank(s), medians of ', REPS, ' passes'
+        write(*, '(a)') '# pass      particles before -> after   step before [s]   pass [s] ' // &
+            '[range]          us/particle  pass/step before  pass/step after'
     end if
     do mode = REMESH_REFINE, REMESH_SAME
-        call run(mode, step_seconds, pass_seconds, n_before, n_after)
-        if (env%rank == 0) write(*, '(a,a8,i12,a,i10,2es11.3,f14.3,f12.2)') '  ', &
-            names(mode), n_before, ' -> ', n_after, step_seconds, pass_seconds, &
-            1.0e6_wp * pass_seconds / real(max(n_before, n_after), wp), &
-            pass_seconds / step_seconds
+        do rep = 1, REPS
+            call run(mode, before(rep), pass(rep), after(rep), n_before, n_after)
+        end do
+        if (env%rank == 0) write(*, ROW) '  ', names(mode), n_before, ' -> ', n_after, &
+            median(before), median(pass), ' [', minval(pass), '-', maxval(pass), ']', &
+            1.0e6_wp * median(pass) / real(max(n_before, n_after), wp), &
+            median(pass) / median(before), median(pass) / median(after)
     end do
     call mpi_env_free(env)
     call MPI_Finalize(ierr)
 
 contains
 
-    subroutine run(mode, step_seconds, pass_seconds, n_before, n_after)
+    !> One pass of `mode` on a fresh set: the mean step before it (5 steps) and after it
+    !> (3 steps of the new set), and the pass (wall seconds, slowest rank).
+    subroutine run(mode, step_before, pass_seconds, step_after, n_before, n_after)
         integer, intent(in) :: mode
-        real(wp), intent(out) :: step_seconds, pass_seconds
+        real(wp), intent(out) :: step_before, pass_seconds, step_after
         integer(i8), intent(out) :: n_before, n_after
         type(simulation_t) :: sim
-        integer :: s
         character(len=:), allocatable :: text
         character(len=32) :: dx_text
-        real(wp) :: t0
-        integer, parameter :: steps = 5
         write(dx_text, '(es24.16)') 1.0e-3_wp / n
         text = "&run case_name='bench' /" // new_line('a') // &
             "&domain dimension=2, box_hi=1.0e-3, 1.0e-3, dx=" // trim(dx_text) // " /" // &
             new_line('a') // "&fluid rho0=1000.0, nu=1.0e-6, sound_speed=1.0e-2 /" // &
             new_line('a')
         call bench_case(env, text, sim)
+        step_before = timed_steps(sim, 5)
+        n_before = global_sum(env, int(sim%p%n_owned, i8))
+        call MPI_Barrier(env%comm)
+        pass_seconds = MPI_Wtime()
+        call simulation_remesh(sim, env, mode)
+        pass_seconds = global_max(env, MPI_Wtime() - pass_seconds)
+        n_after = global_sum(env, int(sim%p%n_owned, i8))
+        step_after = timed_steps(sim, 3)
+    end subroutine run
+
+    !> Mean wall seconds (slowest rank) of `steps` steps of sim.
+    real(wp) function timed_steps(sim, steps) result(seconds)
+        type(simulation_t), intent(inout) :: sim
+        integer, intent(in) :: steps
+        integer :: s
+        real(wp) :: t0
+        call MPI_Barrier(env%comm)
         t0 = MPI_Wtime()
         do s = 1, steps
             call simulation_step(sim, env)
         end do
-        step_seconds = global_max(env, (MPI_Wtime() - t0) / steps)
-        n_before = global_sum(env, int(sim%p%n_owned, i8))
-        call MPI_Barrier(env%comm)
-        t0 = MPI_Wtime()
-        call simulation_remesh(sim, env, mode)
-        pass_seconds = global_max(env, MPI_Wtime() - t0)
-        n_after = global_sum(env, int(sim%p%n_owned, i8))
-    end subroutine run
+        seconds = global_max(env, (MPI_Wtime() - t0) / steps)
+    end function timed_steps
+
+    !> Median of a few values.
+    pure real(wp) function median(values)
+        real(wp), intent(in) :: values(:)
+        real(wp) :: s(size(values)), t
+        integer :: i, j
+        s = values
+        do i = 2, size(s)
+            t = s(i)
+            j = i - 1
+            do while (j >= 1)
+                if (s(j) <= t) exit
+                s(j + 1) = s(j)
+                j = j - 1
+            end do
+            s(j + 1) = t
+        end do
+        if (mod(size(s), 2) == 1) then
+            median = s((size(s) + 1) / 2)
+        else
+            median = 0.5_wp * (s(size(s) / 2) + s(size(s) / 2 + 1))
+        end if
+    end function median
 end program bench_remesh
