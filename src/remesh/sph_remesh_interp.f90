@@ -147,7 +147,7 @@ contains
         integer, allocatable :: al(:), first(:), last(:)
         type(cell_grid_t) :: grid
         integer :: j, q, r, p, nloc, lost, n_cand, n_runs
-        real(wp) :: t0(3), t1(3, 3), beta(3), xj(3), inv_h, total
+        real(wp) :: t0(3), t1(3, 3), beta(3), xj(3), inv_h, total, lowest
         logical :: ok
 
         stat = 0
@@ -182,33 +182,39 @@ contains
                 allocate(dl(3, n_cand), wl(n_cand), cw(n_cand), al(n_cand), cd(n_cand, 3), &
                     cwt(n_cand))
             end if
-            ! every candidate's offsets and weight in loops without branches over contiguous
-            ! runs (the compiler vectorises them; most candidates lie outside the cube), then
-            ! the pairs (positive weight) compacted
+            ! every candidate's offsets and weight without branches over contiguous runs (the
+            ! compiler vectorises the runs; most candidates lie outside the cube), then the
+            ! pairs (positive weight) compacted
             p = 0
             do r = 1, n_runs
-                do q = first(r), last(r)
-                    cd(p + q - first(r) + 1, 1) = (ys(q, 1) - xj(1)) * inv_h
-                    cd(p + q - first(r) + 1, 2) = (ys(q, 2) - xj(2)) * inv_h
-                    cd(p + q - first(r) + 1, 3) = (ys(q, 3) - xj(3)) * inv_h
-                end do
+                if (dim == 2) then
+                    do q = first(r), last(r)
+                        cd(p + q - first(r) + 1, 1) = (ys(q, 1) - xj(1)) * inv_h
+                        cd(p + q - first(r) + 1, 2) = (ys(q, 2) - xj(2)) * inv_h
+                        cd(p + q - first(r) + 1, 3) = 0.0_wp
+                        cwt(p + q - first(r) + 1) = m4_weight(cd(p + q - first(r) + 1, 1)) * &
+                            m4_weight(cd(p + q - first(r) + 1, 2))
+                    end do
+                else
+                    do q = first(r), last(r)
+                        cd(p + q - first(r) + 1, 1) = (ys(q, 1) - xj(1)) * inv_h
+                        cd(p + q - first(r) + 1, 2) = (ys(q, 2) - xj(2)) * inv_h
+                        cd(p + q - first(r) + 1, 3) = (ys(q, 3) - xj(3)) * inv_h
+                        cwt(p + q - first(r) + 1) = m4_weight(cd(p + q - first(r) + 1, 1)) * &
+                            m4_weight(cd(p + q - first(r) + 1, 2)) * &
+                            m4_weight(cd(p + q - first(r) + 1, 3))
+                    end do
+                end if
                 p = p + last(r) - first(r) + 1
             end do
-            if (dim == 2) then
-                do p = 1, n_cand
-                    cwt(p) = m4_weight(cd(p, 1)) * m4_weight(cd(p, 2))
-                end do
-            else
-                do p = 1, n_cand
-                    cwt(p) = m4_weight(cd(p, 1)) * m4_weight(cd(p, 2)) * m4_weight(cd(p, 3))
-                end do
-            end if
             nloc = 0
             p = 0
             do r = 1, n_runs
                 do q = first(r), last(r)
                     p = p + 1
-                    dl(:, nloc + 1) = cd(p, :)
+                    dl(1, nloc + 1) = cd(p, 1)
+                    dl(2, nloc + 1) = cd(p, 2)
+                    dl(3, nloc + 1) = cd(p, 3)
                     wl(nloc + 1) = cwt(p)
                     al(nloc + 1) = grid%sorted(q)
                     nloc = nloc + merge(1, 0, cwt(p) > 0.0_wp)
@@ -232,19 +238,23 @@ contains
                 ! first-order corrected weights: the centroid kept (module header)
                 call weight_moments(dim, nloc, wl, dl, t0, t1)
                 call solve_small(dim, t1, -t0, beta, ok)
+                lowest = 0.0_wp
+                total = 0.0_wp
                 if (ok) then
                     do p = 1, nloc
                         cw(p) = wl(p) * (1.0_wp + beta(1) * dl(1, p) + beta(2) * dl(2, p) + &
                             beta(3) * dl(3, p))
+                        lowest = min(lowest, cw(p))
+                        total = total + cw(p)
                     end do
-                    ok = all(cw(1:nloc) >= 0.0_wp) .and. sum(cw(1:nloc)) > 0.0_wp
+                    ok = lowest >= 0.0_wp .and. total > 0.0_wp
                 end if
                 if (.not. ok) then
                     n_mass_fallback = n_mass_fallback + 1
                     cw(1:nloc) = wl(1:nloc)
+                    total = sum(cw(1:nloc))
                 end if
-                total = sum(cw(1:nloc))
-                cw(1:nloc) = cw(1:nloc) / total
+                cw(1:nloc) = cw(1:nloc) * (1.0_wp / total)
             end if
             if (dim == 2) then
                 call scatter_2d(nloc, al, cw, wl, dl, m_old(j), e_old(j), rho_old(j), &
