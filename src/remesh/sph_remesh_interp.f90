@@ -334,6 +334,24 @@ contains
         rho_new(1:n) = m_new(1:n) / acc(A_VOL, 1:n)
         ! velocity: the first-order corrected interpolant,
         ! v_a = sum_j u_aj (1 + gam . d_j) v_j / (s0 + gam . s1) = (va + vb gam) / (s0 + gam . s1)
+        if (dim == 2) then
+            ! written out (rows as transfer_rows; solve_2x2 does solve_small's arithmetic):
+            ! the general loop's array sections and reshape were a tenth of a refinement
+            do i = 1, n
+                call solve_2x2(acc(9, i), acc(11, i), acc(10, i), acc(12, i), -acc(5, i), &
+                    -acc(6, i), gam(1), gam(2), ok)
+                s0 = acc(A_S0, i)
+                if (ok) ok = s0 + (gam(1) * acc(5, i) + gam(2) * acc(6, i)) > 1.0e-12_wp * s0
+                if (.not. ok) then
+                    n_velocity_fallback = n_velocity_fallback + 1
+                    gam(1:2) = 0.0_wp
+                end if
+                f = s0 + (gam(1) * acc(5, i) + gam(2) * acc(6, i))
+                v_new(1, i) = (acc(7, i) + (gam(1) * acc(13, i) + gam(2) * acc(15, i))) / f
+                v_new(2, i) = (acc(8, i) + (gam(1) * acc(14, i) + gam(2) * acc(16, i))) / f
+            end do
+            return
+        end if
         do i = 1, n
             s2 = 0.0_wp
             s2(1:dim, 1:dim) = reshape(acc(a_s2:a_s2 + dim * dim - 1, i), [dim, dim])
@@ -467,6 +485,35 @@ contains
         c = max(1.0_wp - a, 0.0_wp)
         w = (b * b * b - 4.0_wp * c * c * c) * (1.0_wp / 6.0_wp)
     end function m4_weight
+
+    !> solve_small for dim = 2, the same operations in the same order (so the same result to
+    !> the last bit): [m11 m12; m21 m22] (x1, x2) = (r1, r2).
+    pure subroutine solve_2x2(m11, m12, m21, m22, r1, r2, x1, x2, ok)
+        real(wp), intent(in) :: m11, m12, m21, m22, r1, r2
+        real(wp), intent(out) :: x1, x2
+        logical, intent(out) :: ok
+        real(wp) :: a11, a12, a21, a22, b1, b2, scale
+        x1 = 0.0_wp
+        x2 = 0.0_wp
+        scale = max(abs(m11), abs(m21), abs(m12), abs(m22))
+        ok = scale > 0.0_wp
+        if (.not. ok) return
+        if (abs(m21) > abs(m11)) then
+            a11 = m21; a12 = m22; b1 = r2
+            a21 = m11; a22 = m12; b2 = r1
+        else
+            a11 = m11; a12 = m12; b1 = r1
+            a21 = m21; a22 = m22; b2 = r2
+        end if
+        ok = abs(a11) > 1.0e-10_wp * scale
+        if (.not. ok) return
+        a22 = a22 - a21 / a11 * a12
+        b2 = b2 - a21 / a11 * b1
+        ok = abs(a22) > 1.0e-10_wp * scale
+        if (.not. ok) return
+        x2 = b2 / a22
+        x1 = (b1 - a12 * x2) / a11
+    end subroutine solve_2x2
 
     !> Solve the dim x dim system m x = r by Gaussian elimination with partial pivoting;
     !> ok = .false. when m is (nearly) singular.
