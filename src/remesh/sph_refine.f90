@@ -270,7 +270,7 @@ contains
 
         !> The points in key order: the caller's fresh ids follow the keys (sph_global_ids),
         !> so its sorts of the keys and then of the ids find them in order (one pass each
-        !> instead of a merge sort of 4 N keys, twice).
+        !> instead of a full sort of 4 N keys, twice).
         subroutine in_key_order()
             integer, allocatable :: order(:)
             integer :: i
