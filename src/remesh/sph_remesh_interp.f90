@@ -154,6 +154,9 @@ contains
         errmsg = ''
         acc(:, 1:n_new) = 0.0_wp
         if (dim /= 2 .and. dim /= 3) error stop 'transfer_accumulate: dim must be 2 or 3'
+        ! the scatters address the columns at fixed offsets (explicit shape)
+        if (size(acc, 1) /= transfer_rows(dim)) &
+            error stop 'transfer_accumulate: acc needs transfer_rows(dim) rows'
         ! old-new pairs: the new particles binned in cells of half M4's support half-width
         ! 2 h, each old particle's candidates in the 5^dim cells around it filtered by the
         ! weight itself (zero outside the cube), no pair list stored. The new positions are
