@@ -62,6 +62,10 @@ contains
     !> while a list rebuilt at a checkpoint orders its rows as the reused one (finer cells
     !> let more particles change cell between rebuilds: jobs_chain_under_stand_in_scheduler
     !> then differed in the last bit).
+    !> Resolution levels (multi-resolution runs): with level (of every particle) and
+    !> level_radius(0:), a particle's neighbours are the particles of its own level within
+    !> that level's radius; each level is binned in its own grid with its own cell size, so a
+    !> fine particle scans fine cells only.
     subroutine build_neighbour_list(x, n_total, n_query, dim, radius, nl, level, level_radius, &
             reach)
         real(wp), intent(in) :: x(:, :)
