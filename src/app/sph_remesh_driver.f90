@@ -38,6 +38,14 @@
 !> ids. Same level = refine, then coarsen the refined set (its kept particles carry the fresh
 !> ids), with ONE transfer from the old particles to the final ones.
 !>
+!> Coarsening: the candidates closer than WALL_GAP new spacings to a solid are dropped (the
+!> fine first row lies 0.25 new spacings off: kept, it let a particle into Morris' cylinder
+!> within 900 s of the coarse run), the kept set follows the flow's spacing (sph_coarsen's
+!> follow_spacing), and the set is relaxed as the same-level one is (below): the transfer
+!> gives each particle the mass of its volume, and the kept set's uneven volumes (masses
+!> 17-23 % apart, up to 2.3 times the mean) cost the coarse cylinder flow 4-11 % of its mean
+!> velocity; relaxed, 4-7 % apart and within 1 % of the coarse run's (doc/validation.md).
+!>
 !> Next to solids (optional argument solids): refine_positions applies its wall rule, and the
 !> transfer is handed the mirror images (across each solid surface) of the old and new
 !> particles within MIRROR_REACH = 3 h of it, the old ones with their mass, velocity, density
@@ -91,8 +99,11 @@ module sph_remesh_driver
     !> particles whose mirrors lie within 2 h of an old one (module header)
     real(wp), parameter :: NEW_REACH = 4.0_wp
     real(wp), parameter :: NEW_REACH_SOLIDS = 2.0_wp + 2.0_wp * MIRROR_REACH
-    !> same-level remeshing keeps no new particle closer than this (in dx) to a solid
-    real(wp), parameter :: SAME_LEVEL_WALL_GAP = 0.4_wp
+    !> same-level remeshing and coarsening keep no new particle closer than this (in new
+    !> spacings) to a solid
+    real(wp), parameter :: WALL_GAP = 0.4_wp
+    !> the relaxation squeezes no pair below this (in new spacings): issue 10's floor
+    real(wp), parameter :: RELAX_FLOOR = 0.4_wp
 
     !> What a remesh did (global values, the same on every rank).
     type :: remesh_report_t
@@ -189,9 +200,9 @@ contains
         ! the first row about half a spacing from each solid, as in the initial lattice (the
         ! refined set's rows next to a plane wall lie at 0.5 and 1.0 dx: none is dropped)
         if (env%rank == 0 .and. mode == REMESH_SAME) then
-            call keep_off_solids(SAME_LEVEL_WALL_GAP * dx)
+            call keep_off_solids(WALL_GAP * dx)
             call coarsen_step(dx / 2.0_wp, n, my_stat, message)
-            if (my_stat == 0) call relax_new_set()
+            if (my_stat == 0) call relax_new_set(dx)
         end if
         ! the new set in id order: its particles then lie about in space order (the ids follow
         ! the keys, the keys the old ids), for the transfer and for the caller's id order
@@ -251,7 +262,11 @@ contains
                 allocate(xn(3, n))
                 xn = x(:, 1:n)
                 n_new = n
+                ! the first coarse row about half a new spacing from each solid, as in the
+                ! initial lattice: the fine first row (0.25 new spacings off) is not kept
+                call keep_off_solids(WALL_GAP * 2.0_wp * dx)
                 call coarsen_step(dx, nint(real(n, wp) / 2.0_wp**dim), st, msg)
+                if (st == 0) call relax_new_set(2.0_wp * dx)
                 return
             case default
                 st = 1
@@ -261,7 +276,11 @@ contains
         end subroutine new_positions
 
         !> Keep the coarsen_select set of xn/idn (spacing dxs), filled up to n_target particles
-        !> where the set is disordered.
+        !> where the set is disordered. Coarsening follows the flow's spacing (the kept set
+        !> keeps the flow's clumping at twice the spacing, issue 10's "disorder kept"); the
+        !> same-level remesh does not: it is there to give a clumped flow a fresh set, and a
+        !> kept clumping cost the developed cylinder flow 9 % of its mean velocity
+        !> (doc/validation.md).
         subroutine coarsen_step(dxs, n_target, st, msg)
             real(wp), intent(in) :: dxs
             integer, intent(in) :: n_target
@@ -272,7 +291,7 @@ contains
             character(len=200) :: text
             text = ''
             call coarsen_select(dim, n_new, xn, idn, dxs, n_kept, kept, tag, st, text, &
-                algorithm_box(dxs), n_target=n_target)
+                algorithm_box(dxs), n_target=n_target, follow_spacing=mode == REMESH_COARSEN)
             if (st /= 0) then
                 msg = trim(text)
                 return
@@ -298,28 +317,29 @@ contains
             n_new = size(idn)
         end subroutine keep_off_solids
 
-        !> Rank 0: even out the volumes of the selected set xn (sph_remesh_relax), its
-        !> periodic images and mirrors across the solids pushing; a move that would bring a
-        !> particle closer than SAME_LEVEL_WALL_GAP dx to a solid is not made.
-        subroutine relax_new_set()
+        !> Rank 0: even out the volumes of the selected set xn of spacing sp (sph_remesh_relax),
+        !> its periodic images and mirrors across the solids pushing; a move that would bring a
+        !> particle closer than WALL_GAP sp to a solid is not made.
+        subroutine relax_new_set(sp)
+            real(wp), intent(in) :: sp
             real(wp), allocatable :: y(:, :), moves(:, :)
             integer, allocatable :: orig(:)
             real(wp) :: reach, len_(3), z(3)
             integer :: pass, ny, a, ax
             type(relax_list_t) :: kept
-            reach = 2.0_wp * RELAX_H_FACTOR * dx
+            reach = 2.0_wp * RELAX_H_FACTOR * sp
             len_ = box_hi - box_lo
             allocate(moves(3, max(n_new, 1)))
             do pass = 1, RELAX_PASSES
                 call with_mirrors_and_images(dim, box_lo, box_hi, periodic, solids, reach, &
                     reach, n_new, xn, y, orig, ny)
-                call relax_displacements(dim, n_new, ny, y, dx, moves, kept)
+                call relax_displacements(dim, n_new, ny, y, sp, moves, kept, RELAX_FLOOR)
                 do a = 1, n_new
                     z = xn(:, a) + moves(:, a)
                     do ax = 1, dim
                         if (periodic(ax)) z(ax) = modulo(z(ax), len_(ax))
                     end do
-                    if (clear_of_solids(z, SAME_LEVEL_WALL_GAP * dx)) xn(:, a) = z
+                    if (clear_of_solids(z, WALL_GAP * sp)) xn(:, a) = z
                 end do
             end do
         end subroutine relax_new_set
