@@ -619,6 +619,17 @@ def case_cylinder_multires(runner, args):
     return [block]
 
 
+def remesh_offline(runner, mode, source, target):
+    """`sphremesh --remesh mode source target` on the runner's ranks (its log beside target);
+    True when it worked."""
+    # the remesh never replaces a file: this folder's result of a run before goes
+    if os.path.exists(target):
+        os.remove(target)
+    cmd = ["mpirun", "-np", str(runner.nranks), runner.binary, "--remesh", mode, source, target]
+    with open(target + ".log", "w") as log:
+        return subprocess.call(cmd, stdout=log, stderr=subprocess.STDOUT) == 0
+
+
 def disorder_checks(mode, before, after, new_dx):
     """Issue 10's "disorder kept" checks of one offline remesh to spacing new_dx: (label,
     value, held) for the count, the mean nearest distance, the minimum pair and the CoV of the
@@ -667,14 +678,7 @@ def case_remesh_disorder(runner, args):
             for mode in ("refine", "coarsen"):
                 target = os.path.join(scratch, f"{label.replace(' ', '_').replace('/', '')}"
                                                f"_{t:g}_{mode}.h5")
-                # the remesh never replaces a file: this folder's result of a run before goes
-                if os.path.exists(target):
-                    os.remove(target)
-                cmd = ["mpirun", "-np", str(runner.nranks), runner.binary, "--remesh", mode,
-                       snap, target]
-                status = subprocess.call(cmd, stdout=subprocess.DEVNULL,
-                                         stderr=subprocess.STDOUT)
-                if status != 0:
+                if not remesh_offline(runner, mode, snap, target):
                     block.failed.append(f"remesh_disorder: {label} {t:g} s {mode} failed")
                     continue
                 after = sph_disorder.disorder(target)
@@ -700,15 +704,6 @@ def case_remesh_disorder(runner, args):
                     "(outside) marks an initial lattice's figure outside it (reported, not "
                     "held)."]
     return [block]
-
-
-def remesh_offline(runner, mode, source, target):
-    """`sphremesh --remesh mode source target` on the runner's ranks; True when it worked."""
-    if os.path.exists(target):
-        os.remove(target)
-    cmd = ["mpirun", "-np", str(runner.nranks), runner.binary, "--remesh", mode, source, target]
-    with open(target + ".log", "w") as log:
-        return subprocess.call(cmd, stdout=log, stderr=subprocess.STDOUT) == 0
 
 
 def case_remesh_continue(runner, args):
