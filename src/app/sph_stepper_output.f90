@@ -177,7 +177,7 @@ contains
     module procedure simulation_log_levels
         integer(i8), allocatable :: n_real(:), n_virtual(:), became(:), left(:)
         real(wp), allocatable :: mass(:), momentum(:, :), crossed(:)
-        real(wp) :: per_step
+        real(wp) :: per_step, weight
         integer :: lv, n
         character(len=320) :: line
         if (.not. multires(sim)) return
@@ -209,12 +209,19 @@ contains
         if (sim%cfg%refinement%conserve) then
             ! the corrections of &refinement conserve: what the conversions' imbalance was,
             ! and the mean virtual push on the real fluid against the body force on it
-            write(line, '(a,es11.3,a,3es11.3,a,es10.3,a)') '  conserve: mass put back ', &
-                sim%mass_restored, ' kg; virtual push removed', sim%push_removed / &
-                real(max(sim%push_evaluations, 1_i8), wp), ' N (mean; ', &
-                norm2(sim%push_removed) / real(max(sim%push_evaluations, 1_i8), wp) / &
-                max(norm2(sim%phys%body_force) * sim%reference_mass, tiny(1.0_wp)), &
-                ' of the body force)'
+            write(line, '(a,es11.3,a,3es11.3,a)') '  conserve: mass put back ', &
+                sim%mass_restored, ' kg; virtual push ' // trim(merge('removed', 'kept   ', &
+                sim%cfg%refinement%remove_push)), sim%push_removed / &
+                real(max(sim%push_evaluations, 1_i8), wp), ' N (mean'
+            ! against the body force on the real fluid, when there is one (not in Couette)
+            weight = norm2(sim%phys%body_force) * sim%reference_mass
+            if (weight > 0.0_wp) then
+                write(line(len_trim(line) + 1:), '(a,es10.3,a)') '; ', &
+                    norm2(sim%push_removed) / real(max(sim%push_evaluations, 1_i8), wp) / &
+                    weight, ' of the body force)'
+            else
+                line = trim(line) // ')'
+            end if
             call log_info(trim(line))
             sim%mass_restored = 0.0_wp
             sim%push_removed = 0.0_wp

@@ -248,7 +248,8 @@ contains
     !> force on the solids, this rank's part in solid_force), then the levels' pushes
     !> together (the latest of the levels not evaluated now: sub-cycling) removed as one
     !> acceleration from the real particles of the active levels next to virtual ones, so
-    !> that over a cycle every level's share of it goes (collective).
+    !> that over a cycle every level's share of it goes (collective). With &refinement
+    !> remove_push = .false. the push is measured (for the log) and left in place.
     subroutine balance_virtual_push(sim, env, active, solid_force)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
@@ -283,13 +284,15 @@ contains
         end do
         push = sum(sim%level_push, dim=2)
         near_mass = sum(sim%level_push_mass)
+        ! measured for the log either way, removed only when asked
+        sim%push_removed = sim%push_removed + push
+        sim%push_evaluations = sim%push_evaluations + 1
+        if (.not. sim%cfg%refinement%remove_push) return
         if (near_mass <= 0.0_wp) return
         do lv = 0, n - 1
             if (active(lv)) call remove_virtual_push(sim%p, lv, sim%near_virtual, &
                 push / near_mass)
         end do
-        sim%push_removed = sim%push_removed + push
-        sim%push_evaluations = sim%push_evaluations + 1
     end subroutine balance_virtual_push
 
     module procedure planned_substeps
