@@ -44,7 +44,7 @@
 !> follow_spacing), and the set is relaxed as the same-level one is (below): the transfer
 !> gives each particle the mass of its volume, and the kept set's uneven volumes (masses
 !> 17-23 % apart, up to 2.3 times the mean) cost the coarse cylinder flow 4-11 % of its mean
-!> velocity; relaxed, 4-7 % apart and within 1 % of the coarse run's (doc/validation.md).
+!> velocity; relaxed, 5-8 % apart and within 0.4 % of the coarse run's (doc/validation.md).
 !>
 !> Next to solids (optional argument solids): refine_positions applies its wall rule, and the
 !> transfer is handed the mirror images (across each solid surface) of the old and new
