@@ -61,6 +61,10 @@ module sph_rates
     end type rates_scratch_t
     type(rates_scratch_t), save :: kept_scratch
 
+    !> compute_rates finds the rows of this many particles, then evaluates dW/dr and the
+    !> factors of all their pairs in one batch, then their pair terms.
+    integer, parameter :: RATES_BLOCK = 32
+
 contains
 
     !> Pressure from density by the equation of state (plus the background pressure), for
@@ -327,12 +331,17 @@ contains
         type(solids_t), intent(in), optional :: solids   !< for Morris walls of curved bodies
         real(wp), intent(inout), optional :: wall_forces(:, :, :)
         integer, intent(in), optional :: level
-        integer :: i, k, j, a, s, m, n_near, n_fluid, n_other
+        integer :: i, k, j, a, s, m, n_near, n_fluid, n_other, b, i0, i1, n_block
         real(wp) :: d(3), r2, grad(3), vij(3), vvisc(3), pterm, coeff, beta, xi(3)
         real(wp) :: drho, dv(3), de, rho_i, mu_i, q, sterm(3), eps_i(3, 3), eps_j(3, 3)
         real(wp) :: support2, m_i, m_j, vg, f(3), e_pair, visc_scale
         real(wp) :: vol2, pt, fp(3), fb(3), dvb(3), a_i(3), a_j(3), p_b
         integer, allocatable :: near(:)   !< the neighbours of i within the support
+        !> a block's rows in near(:) and alike: i's are b + 1 .. b + n_near (fluid first,
+        !> n_fluid of them), with b = row_base(i - i0 + 1), n_near = row_count(...)
+        integer :: row_base(RATES_BLOCK), row_count(RATES_BLOCK), row_fluid(RATES_BLOCK)
+        integer, allocatable :: w_near(:)  !< wall_density_rate's partners
+        real(wp), allocatable :: w_d(:, :), w_r(:), w_r2(:), w_dwdr(:)
         real(wp), allocatable :: d_near(:, :), r_near(:), r2_near(:), dwdr_near(:)
         real(wp), allocatable :: grad_near(:), visc_near(:)
         real(wp), allocatable :: state(:, :)  !< v, m, p/rho^2, 1/rho of all particles
@@ -357,9 +366,11 @@ contains
         visc_scale = phys%nu * phys%viscous_scale
         k = 0
         if (p%n_owned > 0) k = maxval(nl%start(2:p%n_owned + 1) - nl%start(1:p%n_owned))
-        allocate(near(k), d_near(3, k), r_near(k), r2_near(k), dwdr_near(k), grad_near(k), &
-            visc_near(k), other(k))
+        allocate(w_near(k), w_d(3, k), w_r(k), w_r2(k), w_dwdr(k), other(k))
         if (quadratic_walls) allocate(all_near(k), all_r(k), all_r2(k), all_dwdr(k))
+        k = k * RATES_BLOCK
+        allocate(near(k), d_near(3, k), r_near(k), r2_near(k), dwdr_near(k), grad_near(k), &
+            visc_near(k))
         ! what a pair reads of j, packed: one or two cache lines per neighbour
         ! of the particles of this level only: the list pairs no others (half the work of a
         ! two-level run, evaluated level by level)
@@ -410,163 +421,184 @@ contains
             end do
         end if
 
-        do i = 1, p%n_owned
-            if (other_level(p, i, level)) cycle
-            select case (p%kind(i))
-            case (KIND_WALL)
-                if (phys%walls == WALLS_MORRIS .and. &
-                    phys%wall_pressure == WALL_PRESSURE_CONTINUITY) call wall_density_rate(i)
-                cycle
-            case (KIND_FLUID, KIND_VIRTUAL)
-            case default
-                cycle
-            end select
-            rho_i = p%rho(i)
-            m_i = state(4, i)
-            mu_i = rho_i * phys%nu
-            if (strain_viscosity) eps_i = tensor(p%strain(:, i))
-            drho = 0.0_wp
-            dv = 0.0_wp
-            de = 0.0_wp
-            dvb = 0.0_wp
-            xi = p%x(:, i)
-            ! A_i = rho_i v_i (vt_i - v_i): (A_i . grad W)_a = a_i(a) (dv_transport_i . grad W)
-            if (tvf) a_i = rho_i * p%v(:, i)
-            ! the pairs within the support not yet evaluated from the other side, then dW/dr
-            ! of all of them in one kernel call. With Morris' viscosity and without the
-            ! transport velocity the fluid partners come first (n_fluid of them) and go
-            ! through morris_fluid_pairs; the others (walls, mirrors) follow in list order
-            ! through the general loop.
-            n_near = 0
-            n_other = 0
-            do k = nl%start(i), nl%start(i + 1) - 1
-                j = nl%index(k)
-                if (j < i) then
-                    if (paired(j)) cycle
-                end if
-                d = xi - p%x(:, j)
-                r2 = d(1)**2 + d(2)**2 + d(3)**2
-                if (r2 <= 0.0_wp .or. r2 >= support2) cycle
-                if (fast_fluid .and. .not. flows(j)) then
-                    n_other = n_other + 1
-                    other(n_other) = j
-                    cycle
-                end if
-                n_near = n_near + 1
-                near(n_near) = j
-                d_near(:, n_near) = d
-                r2_near(n_near) = r2
+        do i0 = 1, p%n_owned, RATES_BLOCK
+            i1 = min(i0 + RATES_BLOCK - 1, p%n_owned)
+            ! the rows of the block's fluid particles: the pairs within the support not yet
+            ! evaluated from the other side, every row after the one before. With Morris'
+            ! viscosity and without the transport velocity a row's fluid partners come first
+            ! (n_fluid of them) and go through morris_fluid_pairs; the others (walls, mirrors)
+            ! follow in list order through the general loop.
+            n_block = 0
+            do i = i0, i1
+                b = i - i0 + 1
+                row_base(b) = n_block
+                row_count(b) = 0
+                row_fluid(b) = 0
+                if (other_level(p, i, level)) cycle
+                if (.not. (p%kind(i) == KIND_FLUID .or. p%kind(i) == KIND_VIRTUAL)) cycle
+                xi = p%x(:, i)
+                n_near = n_block
+                n_other = 0
+                do k = nl%start(i), nl%start(i + 1) - 1
+                    j = nl%index(k)
+                    if (j < i) then
+                        if (paired(j)) cycle
+                    end if
+                    d = xi - p%x(:, j)
+                    r2 = d(1)**2 + d(2)**2 + d(3)**2
+                    if (r2 <= 0.0_wp .or. r2 >= support2) cycle
+                    if (fast_fluid .and. .not. flows(j)) then
+                        n_other = n_other + 1
+                        other(n_other) = j
+                        cycle
+                    end if
+                    n_near = n_near + 1
+                    near(n_near) = j
+                    d_near(:, n_near) = d
+                    r2_near(n_near) = r2
+                end do
+                row_fluid(b) = merge(n_near - n_block, 0, fast_fluid)
+                do m = 1, n_other
+                    j = other(m)
+                    n_near = n_near + 1
+                    near(n_near) = j
+                    d_near(:, n_near) = xi - p%x(:, j)
+                    r2_near(n_near) = sum(d_near(:, n_near)**2)
+                end do
+                row_count(b) = n_near - n_block
+                n_block = n_near
             end do
-            n_fluid = merge(n_near, 0, fast_fluid)
-            do m = 1, n_other
-                j = other(m)
-                n_near = n_near + 1
-                near(n_near) = j
-                d_near(:, n_near) = xi - p%x(:, j)
-                r2_near(n_near) = sum(d_near(:, n_near)**2)
-            end do
-            r_near(1:n_near) = sqrt(r2_near(1:n_near))
-            call phys%kernel%dwdr_many(r_near(1:n_near), dwdr_near(1:n_near))
-            ! grad W = d * grad_near; Morris' viscous factor r dW/dr / (r^2 + eta^2): one
-            ! vectorisable loop, so the divisions are not paid pair by pair
-            do m = 1, n_near
+            ! dW/dr of the whole block in one kernel call, and grad W = d * grad_near, Morris'
+            ! viscous factor r dW/dr / (r^2 + eta^2): loops long enough to vectorise well (one
+            ! particle's row is about ten pairs, the vector tails cost as much as the vectors)
+            r_near(1:n_block) = sqrt(r2_near(1:n_block))
+            call phys%kernel%dwdr_many(r_near(1:n_block), dwdr_near(1:n_block))
+            do m = 1, n_block
                 grad_near(m) = dwdr_near(m) / r_near(m)
                 visc_near(m) = r_near(m) * dwdr_near(m) / (r2_near(m) + phys%eta2)
             end do
-            curv_i = 0.0_wp
-            if (quadratic_walls) then
-                if (any(p%kind(near(n_fluid + 1:n_near)) == KIND_WALL)) call wall_curvature()
-            end if
-            if (n_fluid > 0) call morris_fluid_pairs(n_fluid, near, d_near, grad_near, &
-                visc_near, i, visc_scale, state, drho, dv, de, handed)
-            ! Morris' walls: every other partner is a wall particle (morris_wall_pairs)
-            if (fast_walls) call morris_wall_pairs(n_fluid + 1, n_near)
-            do m = merge(n_near + 1, n_fluid + 1, fast_walls), n_near
-                j = near(m)
-                d = d_near(:, m)
-                r2 = r2_near(m)
-                if (repulsive_walls .and. p%kind(j) == KIND_WALL) then
-                    if (r_near(m) < phys%repulsive_r0) then
-                        q = phys%repulsive_r0 / r_near(m)
-                        f = phys%repulsive_d * (q**phys%repulsive_n1 - q**phys%repulsive_n2) &
-                            * d / r2
-                        dv = dv + f
-                        s = force_slot(j)
-                        if (s > 0) wall_forces(:, 1, s) = wall_forces(:, 1, s) - m_i * f
-                    end if
+            do i = i0, i1
+                if (other_level(p, i, level)) cycle
+                select case (p%kind(i))
+                case (KIND_WALL)
+                    if (phys%walls == WALLS_MORRIS .and. &
+                        phys%wall_pressure == WALL_PRESSURE_CONTINUITY) call wall_density_rate(i)
                     cycle
+                case (KIND_FLUID, KIND_VIRTUAL)
+                case default
+                    cycle
+                end select
+                rho_i = p%rho(i)
+                m_i = state(4, i)
+                mu_i = rho_i * phys%nu
+                if (strain_viscosity) eps_i = tensor(p%strain(:, i))
+                drho = 0.0_wp
+                dv = 0.0_wp
+                de = 0.0_wp
+                dvb = 0.0_wp
+                xi = p%x(:, i)
+                b = row_base(i - i0 + 1)
+                n_near = row_count(i - i0 + 1)
+                n_fluid = row_fluid(i - i0 + 1)
+                ! A_i = rho_i v_i (vt_i - v_i): (A_i . grad W)_a = a_i(a) (dv_transport_i . grad W)
+                if (tvf) a_i = rho_i * p%v(:, i)
+                curv_i = 0.0_wp
+                if (quadratic_walls) then
+                    if (any(p%kind(near(b + n_fluid + 1:b + n_near)) == KIND_WALL)) &
+                        call wall_curvature()
                 end if
-                m_j = state(4, j)
-                grad = d * grad_near(m)
-                vij = p%v(:, i) - state(1:3, j)
-                vg = dot_product(vij, grad)
-                pterm = state(5, i) + state(5, j)
-                ! per unit mass of the partner: f is the force on i, e_pair its heating
-                if (tvf) then
-                    ! per unit mass of both: (V_i^2 + V_j^2) / (m_i m_j)
-                    vol2 = (vol_sq(i) + vol_sq(j)) / (m_i * m_j)
-                    pt = (p%rho(j) * p%p(i) + rho_i * p%p(j)) / (rho_i + p%rho(j))
-                    fp = -(vol2 * pt) * grad
-                    fb = -(vol2 * p_b) * grad
-                    f = fp
-                    if (p%kind(j) /= KIND_WALL) then
-                        a_j = p%rho(j) * state(1:3, j)
-                        f = f + (0.5_wp * vol2) * (a_i * dot_product(p%dv_transport(:, i), &
-                            grad) + a_j * dot_product(p%dv_transport(:, j), grad))
+                if (n_fluid > 0) call morris_fluid_pairs(n_fluid, near(b + 1:), &
+                    d_near(:, b + 1:), grad_near(b + 1:), visc_near(b + 1:), i, visc_scale, &
+                    state, drho, dv, de, handed)
+                ! Morris' walls: every other partner is a wall particle (morris_wall_pairs)
+                if (fast_walls) call morris_wall_pairs(b + n_fluid + 1, b + n_near)
+                do m = b + merge(n_near + 1, n_fluid + 1, fast_walls), b + n_near
+                    j = near(m)
+                    d = d_near(:, m)
+                    r2 = r2_near(m)
+                    if (repulsive_walls .and. p%kind(j) == KIND_WALL) then
+                        if (r_near(m) < phys%repulsive_r0) then
+                            q = phys%repulsive_r0 / r_near(m)
+                            f = phys%repulsive_d * (q**phys%repulsive_n1 - q**phys%repulsive_n2) &
+                                * d / r2
+                            dv = dv + f
+                            s = force_slot(j)
+                            if (s > 0) wall_forces(:, 1, s) = wall_forces(:, 1, s) - m_i * f
+                        end if
+                        cycle
                     end if
-                    e_pair = 0.5_wp * vol2 * pt * vg
-                    dvb = dvb + m_j * fb
-                    if (paired(j)) p%dvdt_background(:, j) = p%dvdt_background(:, j) - m_i * fb
-                else
-                    f = -pterm * grad
-                    e_pair = 0.5_wp * pterm * vg
-                end if
-                if (strain_viscosity) then
-                    eps_j = tensor(p%strain(:, j))
-                    do a = 1, 3
-                        sterm(a) = dot_product(mu_i * eps_i(a, :) / rho_i**2 + &
-                            phys%nu * eps_j(a, :) * state(6, j), grad)
-                    end do
-                    f = f + sterm
-                else
-                    ! Morris: (mu_i + mu_j) / (rho_i rho_j) = nu (1/rho_i + 1/rho_j)
-                    coeff = visc_scale * (state(6, i) + state(6, j)) * visc_near(m)
-                    vvisc = vij
-                    if (morris_walls .and. p%kind(j) == KIND_WALL) then
-                        call wall_depths(p, i, j, d_f, d_w, solids)
-                        beta = morris_beta(d_f, d_w, phys%beta_max)
-                        ! the wall particle's velocity on the parabola (wall_curvature)
-                        vvisc = beta * vij - curv_i * (d_w * (d_f + d_w))
+                    m_j = state(4, j)
+                    grad = d * grad_near(m)
+                    vij = p%v(:, i) - state(1:3, j)
+                    vg = dot_product(vij, grad)
+                    pterm = state(5, i) + state(5, j)
+                    ! per unit mass of the partner: f is the force on i, e_pair its heating
+                    if (tvf) then
+                        ! per unit mass of both: (V_i^2 + V_j^2) / (m_i m_j)
+                        vol2 = (vol_sq(i) + vol_sq(j)) / (m_i * m_j)
+                        pt = (p%rho(j) * p%p(i) + rho_i * p%p(j)) / (rho_i + p%rho(j))
+                        fp = -(vol2 * pt) * grad
+                        fb = -(vol2 * p_b) * grad
+                        f = fp
+                        if (p%kind(j) /= KIND_WALL) then
+                            a_j = p%rho(j) * state(1:3, j)
+                            f = f + (0.5_wp * vol2) * (a_i * dot_product(p%dv_transport(:, i), &
+                                grad) + a_j * dot_product(p%dv_transport(:, j), grad))
+                        end if
+                        e_pair = 0.5_wp * vol2 * pt * vg
+                        dvb = dvb + m_j * fb
+                        if (paired(j)) p%dvdt_background(:, j) = p%dvdt_background(:, j) - m_i * fb
+                    else
+                        f = -pterm * grad
+                        e_pair = 0.5_wp * pterm * vg
                     end if
-                    f = f + coeff * vvisc
-                    e_pair = e_pair - 0.5_wp * coeff * dot_product(vvisc, vvisc)
-                end if
-                drho = drho + m_j * vg
-                dv = dv + m_j * f
-                de = de + m_j * e_pair
-                if (paired(j)) then
-                    p%drhodt(j) = p%drhodt(j) + m_i * vg
-                    p%dvdt(:, j) = p%dvdt(:, j) - m_i * f
-                    p%dedt(j) = p%dedt(j) + m_i * e_pair
-                else
-                    s = force_slot(j)
-                    if (s > 0 .and. tvf) then
-                        wall_forces(:, 1, s) = wall_forces(:, 1, s) - m_i * m_j * fp
-                        wall_forces(:, 2, s) = wall_forces(:, 2, s) - m_i * m_j * (f - fp)
-                    else if (s > 0) then
-                        wall_forces(:, 1, s) = wall_forces(:, 1, s) + m_i * m_j * pterm * grad
-                        wall_forces(:, 2, s) = wall_forces(:, 2, s) - m_i * m_j * &
-                            (f + pterm * grad)
+                    if (strain_viscosity) then
+                        eps_j = tensor(p%strain(:, j))
+                        do a = 1, 3
+                            sterm(a) = dot_product(mu_i * eps_i(a, :) / rho_i**2 + &
+                                phys%nu * eps_j(a, :) * state(6, j), grad)
+                        end do
+                        f = f + sterm
+                    else
+                        ! Morris: (mu_i + mu_j) / (rho_i rho_j) = nu (1/rho_i + 1/rho_j)
+                        coeff = visc_scale * (state(6, i) + state(6, j)) * visc_near(m)
+                        vvisc = vij
+                        if (morris_walls .and. p%kind(j) == KIND_WALL) then
+                            call wall_depths(p, i, j, d_f, d_w, solids)
+                            beta = morris_beta(d_f, d_w, phys%beta_max)
+                            ! the wall particle's velocity on the parabola (wall_curvature)
+                            vvisc = beta * vij - curv_i * (d_w * (d_f + d_w))
+                        end if
+                        f = f + coeff * vvisc
+                        e_pair = e_pair - 0.5_wp * coeff * dot_product(vvisc, vvisc)
                     end if
-                end if
+                    drho = drho + m_j * vg
+                    dv = dv + m_j * f
+                    de = de + m_j * e_pair
+                    if (paired(j)) then
+                        p%drhodt(j) = p%drhodt(j) + m_i * vg
+                        p%dvdt(:, j) = p%dvdt(:, j) - m_i * f
+                        p%dedt(j) = p%dedt(j) + m_i * e_pair
+                    else
+                        s = force_slot(j)
+                        if (s > 0 .and. tvf) then
+                            wall_forces(:, 1, s) = wall_forces(:, 1, s) - m_i * m_j * fp
+                            wall_forces(:, 2, s) = wall_forces(:, 2, s) - m_i * m_j * (f - fp)
+                        else if (s > 0) then
+                            wall_forces(:, 1, s) = wall_forces(:, 1, s) + m_i * m_j * pterm * grad
+                            wall_forces(:, 2, s) = wall_forces(:, 2, s) - m_i * m_j * &
+                                (f + pterm * grad)
+                        end if
+                    end if
+                end do
+                if (strain_viscosity) de = de + mu_i / (2.0_wp * rho_i) * sum(eps_i * eps_i)
+                p%drhodt(i) = p%drhodt(i) + drho
+                p%dvdt(1, i) = p%dvdt(1, i) + dv(1)
+                p%dvdt(2, i) = p%dvdt(2, i) + dv(2)
+                p%dvdt(3, i) = p%dvdt(3, i) + dv(3)
+                p%dedt(i) = p%dedt(i) + de
+                if (tvf) p%dvdt_background(:, i) = p%dvdt_background(:, i) + dvb
             end do
-            if (strain_viscosity) de = de + mu_i / (2.0_wp * rho_i) * sum(eps_i * eps_i)
-            p%drhodt(i) = p%drhodt(i) + drho
-            p%dvdt(1, i) = p%dvdt(1, i) + dv(1)
-            p%dvdt(2, i) = p%dvdt(2, i) + dv(2)
-            p%dvdt(3, i) = p%dvdt(3, i) + dv(3)
-            p%dedt(i) = p%dedt(i) + de
-            if (tvf) p%dvdt_background(:, i) = p%dvdt_background(:, i) + dvb
         end do
         do i = 1, p%n_owned
             if (.not. paired(i)) cycle
@@ -713,19 +745,19 @@ contains
                 rr2 = dd(1)**2 + dd(2)**2 + dd(3)**2
                 if (rr2 <= 0.0_wp .or. rr2 >= support2) cycle
                 nw = nw + 1
-                near(nw) = jj
-                d_near(:, nw) = dd
-                r2_near(nw) = rr2
+                w_near(nw) = jj
+                w_d(:, nw) = dd
+                w_r2(nw) = rr2
             end do
-            r_near(1:nw) = sqrt(r2_near(1:nw))
-            call phys%kernel%dwdr_many(r_near(1:nw), dwdr_near(1:nw))
+            w_r(1:nw) = sqrt(w_r2(1:nw))
+            call phys%kernel%dwdr_many(w_r(1:nw), w_dwdr(1:nw))
             drho = 0.0_wp
             do mm = 1, nw
-                jj = near(mm)
-                gw = dwdr_near(mm) / r_near(mm)
-                drho = drho + state(4, jj) * ((state(1, iw) - state(1, jj)) * (d_near(1, mm) &
-                    * gw) + (state(2, iw) - state(2, jj)) * (d_near(2, mm) * gw) + &
-                    (state(3, iw) - state(3, jj)) * (d_near(3, mm) * gw))
+                jj = w_near(mm)
+                gw = w_dwdr(mm) / w_r(mm)
+                drho = drho + state(4, jj) * ((state(1, iw) - state(1, jj)) * (w_d(1, mm) &
+                    * gw) + (state(2, iw) - state(2, jj)) * (w_d(2, mm) * gw) + &
+                    (state(3, iw) - state(3, jj)) * (w_d(3, mm) * gw))
             end do
             p%drhodt(iw) = drho
         end subroutine wall_density_rate
