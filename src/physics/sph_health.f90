@@ -3,8 +3,9 @@
 !> collapsing time step. "Inside" means deeper than IN_SOLID_SLACK h behind the surface:
 !> Morris' first wall row lies half a spacing (0.38 h with the cubic spline) behind it, and a
 !> fluid particle between the surface and that row has not gone through the wall; with no
-!> slack, remeshed cylinder flows stopped on particles 1e-4 dx behind the surface. No MPI here: the stepper agrees on the verdict across ranks, writes a
-!> failure snapshot and stops every rank.
+!> slack, remeshed cylinder flows stopped on particles 1e-4 dx behind the surface. No MPI
+!> here: the stepper agrees on the verdict across ranks, writes a failure snapshot and stops
+!> every rank.
 module sph_health
     use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
     use sph_kinds, only: wp, i8
