@@ -6,6 +6,7 @@ module bench_support
     use sph_config, only: config_t, config_parse
     use sph_stepper, only: simulation_t, simulation_setup, simulation_step
     use sph_logger, only: logger_init, VERBOSITY_QUIET
+    use sph_memory, only: keep_freed_memory
     use mpi_f08, only: MPI_Barrier
     implicit none
     private
@@ -18,6 +19,8 @@ contains
         type(mpi_env_t), intent(out) :: env
         integer, intent(inout) :: value
         character(len=32) :: arg
+        ! as the main program does (sph_memory)
+        call keep_freed_memory()
         call mpi_env_init_world(env)
         call logger_init(env%rank, VERBOSITY_QUIET)
         if (command_argument_count() >= 1) then

@@ -11,6 +11,7 @@ program sphremesh_main
     use sph_stepper, only: simulation_t, simulation_setup, simulation_check_report, &
         simulation_remesh_file
     use sph_signals, only: signals_install
+    use sph_memory, only: keep_freed_memory
     use mpi_f08, only: MPI_Finalize
     implicit none
 
@@ -22,6 +23,7 @@ program sphremesh_main
     character(len=:), allocatable :: errmsg
     character(len=16) :: nranks_text
 
+    call keep_freed_memory()
     call mpi_env_init_world(env)
     call logger_init(env%rank)
     ! a scheduler's SIGTERM/SIGUSR1 asks for a checkpoint and a clean stop (sph_schedule)
