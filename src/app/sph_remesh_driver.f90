@@ -78,7 +78,8 @@ module sph_remesh_driver
     use sph_halo, only: halo_t, halo_setup, halo_build, halo_reverse_sum
     use sph_refine, only: refine_positions, WALL_BAND
     use sph_solids, only: solids_t, solid_distance, solid_reflect
-    use sph_remesh_relax, only: relax_displacements, relax_list_t, RELAX_PASSES, RELAX_H_FACTOR
+    use sph_remesh_relax, only: relax_displacements, relax_list_t, RELAX_PASSES, RELAX_H_FACTOR, &
+        RELAX_TOLERANCE
     use sph_coarsen, only: coarsen_select
     use sph_remesh_interp, only: transfer_accumulate, transfer_finish, transfer_rows
     use sph_global_ids, only: assign_global_ids, global_max_id, id_order
@@ -113,6 +114,7 @@ module sph_remesh_driver
         real(wp) :: seconds = 0.0_wp                !< wall time of the remesh
         integer :: n_irregular = 0                   !< refinement: cells without a centre
         integer :: n_mass_fallback = 0, n_velocity_fallback = 0   !< transfer fallbacks
+        integer :: relax_passes = 0                  !< relaxation passes made (coarsen, same)
     end type remesh_report_t
 
 contains
@@ -208,6 +210,8 @@ contains
         ! the keys, the keys the old ids), for the transfer and for the caller's id order
         if (env%rank == 0 .and. my_stat == 0) call in_id_order()
         if (refused()) return
+        ! rank 0 relaxed the set: every rank reports its passes
+        report%relax_passes = int(global_max(env, int(report%relax_passes, i8)))
         ! the new fluid particles in p (each rank those of its part), the others after them
         call spread_transfer(my_stat, message)
         if (refused()) return
@@ -319,12 +323,13 @@ contains
 
         !> Rank 0: even out the volumes of the selected set xn of spacing sp (sph_remesh_relax),
         !> its periodic images and mirrors across the solids pushing; a move that would bring a
-        !> particle closer than WALL_GAP sp to a solid is not made.
+        !> particle closer than WALL_GAP sp to a solid is not made. At most RELAX_PASSES
+        !> passes; it stops after a pass whose largest move is below RELAX_TOLERANCE sp.
         subroutine relax_new_set(sp)
             real(wp), intent(in) :: sp
             real(wp), allocatable :: y(:, :), moves(:, :)
             integer, allocatable :: orig(:)
-            real(wp) :: reach, len_(3), z(3)
+            real(wp) :: reach, len_(3), z(3), largest
             integer :: pass, ny, a, ax
             type(relax_list_t) :: kept
             reach = 2.0_wp * RELAX_H_FACTOR * sp
@@ -334,13 +339,21 @@ contains
                 call with_mirrors_and_images(dim, box_lo, box_hi, periodic, solids, reach, &
                     reach, n_new, xn, y, orig, ny)
                 call relax_displacements(dim, n_new, ny, y, sp, moves, kept, RELAX_FLOOR)
+                largest = 0.0_wp
                 do a = 1, n_new
                     z = xn(:, a) + moves(:, a)
                     do ax = 1, dim
                         if (periodic(ax)) z(ax) = modulo(z(ax), len_(ax))
                     end do
-                    if (clear_of_solids(z, WALL_GAP * sp)) xn(:, a) = z
+                    if (clear_of_solids(z, WALL_GAP * sp)) then
+                        xn(:, a) = z
+                        largest = max(largest, norm2(moves(:, a)))
+                    end if
                 end do
+                report%relax_passes = pass
+                ! an even set (a lattice's sublattice) barely moves: the passes left would not
+                ! move it either
+                if (largest < RELAX_TOLERANCE * sp) exit
             end do
         end subroutine relax_new_set
 

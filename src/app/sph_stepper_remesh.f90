@@ -162,11 +162,12 @@ contains
             ' ->', report%momentum_after, ' kg m/s (|change| / |before| ', &
             norm2(report%momentum_after - report%momentum_before) / scale, ')'
         call log_info(trim(line))
-        write(line, '(a,f10.3,a,f10.3,a,i0,a,i0,a,i0,a)') '  time ', report%seconds, ' s (', &
-            1.0e6_wp * report%seconds / real(max(report%n_before, report%n_after, 1_i8), wp), &
+        write(line, '(a,f10.3,a,f10.3,a,i0,a,i0,a,i0,a,i0)') '  time ', report%seconds, &
+            ' s (', 1.0e6_wp * report%seconds / &
+            real(max(report%n_before, report%n_after, 1_i8), wp), &
             ' us per particle); irregular cells ', report%n_irregular, &
             ', transfer fallbacks: mass ', report%n_mass_fallback, ', velocity ', &
-            report%n_velocity_fallback, ''
+            report%n_velocity_fallback, '; relaxation passes ', report%relax_passes
         call log_info(trim(line))
     end subroutine log_remesh
 
