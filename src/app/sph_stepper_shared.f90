@@ -8,7 +8,7 @@
 !> interfaces and documentation are in sph_stepper.
 submodule (sph_stepper) sph_stepper_shared
     use sph_config, only: config_to_text
-    use sph_particles, only: particles_init, HALO_DENSITY, HALO_STRAIN
+    use sph_particles, only: particles_init, particles_enable, HALO_DENSITY, HALO_STRAIN
     use sph_physics, only: physics_from_config, VISCOSITY_STRAIN_RATE, WALLS_MORRIS, &
         WALL_PRESSURE_EXTRAPOLATED, stiffest_viscosity
     use sph_walls, only: solids_from_config
@@ -77,6 +77,9 @@ contains
         call domain_create(sim%domain, env, cfg%domain%dimension, cfg%domain%box_lo, &
             cfg%domain%box_hi, periodic)
         call particles_init(sim%p, 1024, cfg%domain%dimension)
+        ! the fields only some models use (sph_particles)
+        call particles_enable(sim%p, transport=sim%phys%transport_velocity, &
+            strain=sim%phys%viscosity == VISCOSITY_STRAIN_RATE)
         if (multires(sim) .and. sim%zones%split_virtuals) call add_lineage_field(sim%p)
         ! ghosts reach the support plus a skin that covers any motion within one step, plus
         ! the neighbour-list skin that particles may use up over the steps between rebuilds

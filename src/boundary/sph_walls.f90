@@ -329,7 +329,7 @@ contains
                 p%h(n) = p%h(k)
                 p%e(n) = p%e(k)
                 ! strain of the image flow: an approximation (sign flip), see doc/physics.md
-                p%strain(:, n) = -p%strain(:, k)
+                if (p%with_strain) p%strain(:, n) = -p%strain(:, k)
                 p%wall_normal(:, n) = 0.0_wp
                 p%wall_distance(n) = 0.0_wp
                 p%id(n) = -p%id(k)

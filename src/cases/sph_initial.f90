@@ -255,7 +255,7 @@ contains
             p%dvdt(:, n) = 0.0_wp; p%drhodt(n) = 0.0_wp; p%dedt(n) = 0.0_wp
             p%x_old(:, n) = x; p%v_old(:, n) = velocity
             p%rho_old(n) = cfg%fluid%rho0; p%e_old(n) = 0.0_wp
-            p%strain(:, n) = 0.0_wp
+            if (p%with_strain) p%strain(:, n) = 0.0_wp
             p%wall_normal(:, n) = wall_normal
             p%wall_distance(n) = wall_distance
             p%id(n) = id

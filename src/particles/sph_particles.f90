@@ -11,11 +11,16 @@
 !> (sph_snapshot). Adding a field is a component here and one line in particles_visit; a
 !> module may also add a real field at run time (particles_add_field), which then takes part in
 !> all of the above like the built-in ones.
+!> Fields that only some models use are allocated and visited only when a run enables them
+!> (particles_enable): the transport velocity's two vectors and the strain rate, 12 values
+!> of a particle's 40, which a run with Morris' viscosity and no transport velocity would
+!> otherwise allocate, grow, copy and zero for nothing (peak memory at 10^6 particles 588 ->
+!> 502 bytes a particle).
 module sph_particles
     use sph_kinds, only: wp, i8
     implicit none
     private
-    public :: particles_t, particles_init, particles_free, particles_reserve
+    public :: particles_t, particles_init, particles_free, particles_reserve, particles_enable
     public :: particles_copy, particles_gather, particles_clear, particles_visit, particles_swap
     public :: particles_add_field, particles_add_fields_of, particles_append
     public :: particles_pack, particles_unpack, pack_widths, field_list
@@ -87,11 +92,15 @@ module sph_particles
         real(wp), allocatable :: v_old(:, :)
         real(wp), allocatable :: rho_old(:)
         real(wp), allocatable :: e_old(:)
-        ! transport-velocity formulation: the particles move with v + dv_transport; the
-        ! background pressure's acceleration gives dv_transport = dt_stage dvdt_background
+        ! transport-velocity formulation (with_transport only): the particles move with
+        ! v + dv_transport; the background pressure's acceleration gives
+        ! dv_transport = dt_stage dvdt_background
+        logical :: with_transport = .false.
         real(wp), allocatable :: dv_transport(:, :)
         real(wp), allocatable :: dvdt_background(:, :)
         ! viscous strain rate (xx, yy, zz, xy, xz, yz) for the strain-rate viscosity
+        ! (with_strain only)
+        logical :: with_strain = .false.
         real(wp), allocatable :: strain(:, :)
         ! wall particles: unit normal into the fluid and distance behind the wall plane
         real(wp), allocatable :: wall_normal(:, :)
@@ -247,10 +256,13 @@ contains
         call op%real2(p%v_old, field_info_t('velocity_old', 3, 0))
         call op%real1(p%rho_old, field_info_t('density_old', 1, 0))
         call op%real1(p%e_old, field_info_t('energy_old', 1, 0))
-        call op%real2(p%dv_transport, field_info_t('transport_offset', 3, ckpt + &
-            FIELD_OPTIONAL + HALO_TRANSPORT))
-        call op%real2(p%dvdt_background, field_info_t('background_acceleration', 3, 0))
-        call op%real2(p%strain, field_info_t('strain_rate', 6, ghost + HALO_STRAIN))
+        if (p%with_transport) then
+            call op%real2(p%dv_transport, field_info_t('transport_offset', 3, ckpt + &
+                FIELD_OPTIONAL + HALO_TRANSPORT))
+            call op%real2(p%dvdt_background, field_info_t('background_acceleration', 3, 0))
+        end if
+        if (p%with_strain) call op%real2(p%strain, field_info_t('strain_rate', 6, &
+            ghost + HALO_STRAIN))
         call op%real2(p%wall_normal, field_info_t('wall_normal', 3, ckpt + ghost))
         call op%real1(p%wall_distance, field_info_t('wall_distance', 1, ckpt + ghost))
         call op%int8(p%id, field_info_t('id', 1, snap + ghost, FIELD_INT8))
@@ -299,6 +311,7 @@ contains
         type(particles_t), intent(inout) :: p
         type(particles_t), intent(in) :: source
         integer :: k, added
+        call particles_enable(p, source%with_transport, source%with_strain)
         if (.not. allocated(source%extra)) return
         do k = 1, size(source%extra)
             added = particles_add_field(p, trim(source%extra(k)%info%name), &
@@ -321,7 +334,12 @@ contains
         type(list_op_t) :: op
         integer :: k
         allocate(op%fields(0))
+        ! without p: every built-in field, the optional ones included
+        shape_only%with_transport = .true.
+        shape_only%with_strain = .true.
         if (present(p)) then
+            shape_only%with_transport = p%with_transport
+            shape_only%with_strain = p%with_strain
             if (allocated(p%extra)) then
                 allocate(shape_only%extra(size(p%extra)))
                 do k = 1, size(p%extra)
@@ -365,6 +383,28 @@ contains
         p%capacity = op%capacity
     end subroutine particles_init
 
+    !> Enable the fields of the transport velocity (dv_transport, dvdt_background) and/or of
+    !> the strain-rate viscosity (strain): from now on they are allocated (zero), grown,
+    !> moved and written with the others. Enabling what is enabled changes nothing.
+    subroutine particles_enable(p, transport, strain)
+        type(particles_t), intent(inout) :: p
+        logical, intent(in), optional :: transport, strain
+        integer :: n
+        n = max(p%capacity, 1)
+        if (present(transport)) then
+            if (transport .and. .not. p%with_transport) then
+                p%with_transport = .true.
+                allocate(p%dv_transport(3, n), p%dvdt_background(3, n), source=0.0_wp)
+            end if
+        end if
+        if (present(strain)) then
+            if (strain .and. .not. p%with_strain) then
+                p%with_strain = .true.
+                allocate(p%strain(6, n), source=0.0_wp)
+            end if
+        end if
+    end subroutine particles_enable
+
     !> Release every array of the table (it can be initialised again).
     subroutine particles_free(p)
         type(particles_t), intent(inout) :: p
@@ -401,6 +441,8 @@ contains
                 if (a%extra(k)%info%name /= b%extra(k)%info%name) same = .false.
             end do
         end if
+        if (a%with_transport .neqv. b%with_transport) same = .false.
+        if (a%with_strain .neqv. b%with_strain) same = .false.
         if (.not. same) error stop 'particles_swap: the tables have different run-time fields'
         allocate(op%slots(64 + extra_count(a)))
         op%stage = SWAP_STASH
@@ -470,8 +512,10 @@ contains
         first = p%n_owned + 1
         p%n_total = p%n_owned
         call particles_reserve(p, p%n_owned + size(keep))
-        ! the run-time fields p has and `from` lacks (a lattice made on its own): zero there
+        ! the run-time fields p has and `from` lacks (a lattice made on its own): zero there;
+        ! and the optional fields `from` has, in p too, so both pack the same fields
         call particles_add_fields_of(from, p)
+        call particles_enable(p, from%with_transport, from%with_strain)
         call pack_widths(from, ALL_FIELDS, n_real, n_int)
         allocate(rbuf(n_real, max(size(keep), 1)), ibuf(n_int, max(size(keep), 1)))
         call particles_pack(from, ALL_FIELDS, keep, size(keep), rbuf, ibuf)
