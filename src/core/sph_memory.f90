@@ -1,31 +1,22 @@
 !> The process's own memory accounting: its peak resident set, as the kernel counts it
 !> (Linux /proc/self/status, VmHWM). Elsewhere the figure is unknown and reported as such.
-!> And how freed memory is kept for reuse (keep_freed_memory).
+!> And keep_freed_memory: asks the C library to keep freed blocks up to 32 MiB mapped for
+!> reuse instead of returning them to the system (sph_memory_reuse.c), so a remesh or a list
+!> rebuild reuses pages already touched instead of faulting in fresh ones. Call once, early;
+!> where the library offers no such setting nothing changes.
 module sph_memory
-    use, intrinsic :: iso_c_binding, only: c_int
     use sph_kinds, only: i8
     implicit none
     private
     public :: peak_resident_bytes, keep_freed_memory
 
     interface
-        integer(c_int) function sph_keep_freed_memory() bind(C, name='sph_keep_freed_memory')
-            import :: c_int
-        end function sph_keep_freed_memory
+        !> sph_memory_reuse.c
+        subroutine keep_freed_memory() bind(C, name='sph_keep_freed_memory')
+        end subroutine keep_freed_memory
     end interface
 
 contains
-
-    !> Ask the C library to keep freed blocks up to 32 MiB mapped for reuse instead of
-    !> returning them to the system (sph_memory_reuse.c): a remesh or a list rebuild then
-    !> reuses pages already touched instead of faulting in fresh ones. Call once, early.
-    !> stat /= 0 where the library offers no such setting (nothing changes then).
-    subroutine keep_freed_memory(stat)
-        integer, intent(out), optional :: stat
-        integer :: s
-        s = int(sph_keep_freed_memory())
-        if (present(stat)) stat = s
-    end subroutine keep_freed_memory
 
     !> Peak resident set size of this process in bytes; -1 when the system does not say.
     function peak_resident_bytes() result(bytes)

@@ -10,15 +10,12 @@
 #include <malloc.h>
 #endif
 
-int sph_keep_freed_memory(void)
+void sph_keep_freed_memory(void)
 {
 #if defined(M_MMAP_THRESHOLD) && defined(M_TRIM_THRESHOLD)
     /* 32 MiB: glibc's largest mmap threshold on 64-bit systems (DEFAULT_MMAP_THRESHOLD_MAX) */
-    if (mallopt(M_MMAP_THRESHOLD, 32 * 1024 * 1024) != 1) return 1;
+    (void)mallopt(M_MMAP_THRESHOLD, 32 * 1024 * 1024);
     /* trim only above 1 GiB of free memory at the heap's top */
-    if (mallopt(M_TRIM_THRESHOLD, 1024 * 1024 * 1024) != 1) return 1;
-    return 0;
-#else
-    return 1;
+    (void)mallopt(M_TRIM_THRESHOLD, 1024 * 1024 * 1024);
 #endif
 }
