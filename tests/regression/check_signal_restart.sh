@@ -9,16 +9,18 @@ rm -rf "$work" && mkdir -p "$work/straight" "$work/signal" || exit 1
 
 cd "$work/straight" && run > log 2>&1 || { echo "the uninterrupted run failed:"; cat log; exit 1; }
 
-# the interrupted run: SIGTERM to its ranks (found by their working directory) once the
-# first snapshot exists, as a scheduler would send it
+# the interrupted run: SIGTERM to its ranks (found by their working directory) once it has
+# advanced by about a fifth (eight progress lines of its log), as a scheduler would send it;
+# a fixed half second after the first snapshot let the Debug run on 2 ranks (0.45 s in all)
+# end before the signal on an idle host
 cd "$work/signal"
 run > log 2>&1 &
 launcher=$!
-for _ in $(seq 1 600); do
-    ls output/*_000000.h5 > /dev/null 2>&1 && break
-    sleep 0.1
+for _ in $(seq 1 1200); do
+    [ "$(grep -cE '^ +[0-9]+ +[0-9.]+E[-+][0-9]+ ' log 2> /dev/null)" -ge 8 ] && break
+    kill -0 "$launcher" 2> /dev/null || break
+    sleep 0.02
 done
-sleep 0.5
 for pid in $(pgrep -x sphremesh); do
     [ "$(readlink "/proc/$pid/cwd")" = "$PWD" ] && kill -TERM "$pid"
 done
