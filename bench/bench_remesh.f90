@@ -4,7 +4,9 @@
 !> mode runs REPS times on a fresh set; the table gives medians (the pass's range in
 !> brackets): seconds, microseconds per particle and the pass in steps before (the target:
 !> at most 3 steps) and after.
-!>   mpirun -np N build/bin/sphremesh_bench_remesh [n]    (n x n particles, default 316)
+!>   mpirun -np N build/bin/sphremesh_bench_remesh [n [mode]]
+!> n x n particles (default 316); mode refine, coarsen or same runs that pass alone (for a
+!> profile of one pass), all three by default.
 program bench_remesh
     use sph_kinds, only: wp, i8
     use sph_mpi_env, only: mpi_env_t, mpi_env_free, global_sum, global_max
@@ -18,20 +20,33 @@ program bench_remesh
     character(len=*), parameter :: ROW = '(a,a8,i12,a,i10,es14.3,es14.3,a,es9.2,a,es9.2,a,' // &
         'f11.3,2f17.2)'
     type(mpi_env_t) :: env
-    integer :: n, ierr, mode, rep
+    integer :: n, ierr, mode, rep, first_mode, last_mode
+    character(len=16) :: mode_arg
     character(len=8), parameter :: names(3) = [character(len=8) :: 'refine', 'coarsen', 'same']
     real(wp) :: before(REPS), pass(REPS), after(REPS)
     integer(i8) :: n_before, n_after
 
     n = 316
     call bench_start(env, n)
+    first_mode = REMESH_REFINE
+    last_mode = REMESH_SAME
+    if (command_argument_count() >= 2) then
+        call get_command_argument(2, mode_arg)
+        first_mode = findloc(names, trim(mode_arg), 1)
+        if (first_mode == 0) then
+            if (env%rank == 0) write(*, '(a)') 'bench_remesh: mode must be refine, ' // &
+                'coarsen or same, not ' // trim(mode_arg)
+            error stop 1
+        end if
+        last_mode = first_mode
+    end if
     if (env%rank == 0) then
         write(*, '(a,i0,a,i0,a)') '# sphremesh remeshing benchmark, ', env%nranks, &
             ' rank(s), medians of ', REPS, ' passes'
         write(*, '(a)') '# pass      particles before -> after   step before [s]   pass [s] ' // &
             '[range]          us/particle  pass/step before  pass/step after'
     end if
-    do mode = REMESH_REFINE, REMESH_SAME
+    do mode = first_mode, last_mode
         do rep = 1, REPS
             call run(mode, before(rep), pass(rep), after(rep), n_before, n_after)
         end do

@@ -1,6 +1,6 @@
 !> The process's own memory accounting: its peak resident set, as the kernel counts it
 !> (Linux /proc/self/status, VmHWM). Elsewhere the figure is unknown and reported as such.
-!> And keep_freed_memory: asks the C library to keep freed blocks up to 32 MiB mapped for
+!> And keep_freed_memory: asks the C library to keep every freed block mapped for
 !> reuse instead of returning them to the system (sph_memory_reuse.c), so a remesh or a list
 !> rebuild reuses pages already touched instead of faulting in fresh ones. Call once, early;
 !> where the library offers no such setting nothing changes.
