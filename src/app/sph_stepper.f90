@@ -692,7 +692,9 @@ contains
         if (sim%cfg%numerics%fixed_dt > 0.0_wp) dt = sim%cfg%numerics%fixed_dt
         sim%uncapped_dt = dt
         if (present(dt_cap)) dt = min(dt, dt_cap)
-        call verlet_drift(sim%p, dt, integrated_density(sim), sim%step_moved)
+        ! a shifting step measures its particles' displacement from x_old (migrate_and_rebuild)
+        call verlet_drift(sim%p, dt, integrated_density(sim), sim%step_moved, &
+            keep_start=sim%phys%shifting /= SHIFTING_NONE)
         call refresh_halo(sim, env)
         call prepare_boundaries(sim, dt)
         call filter_density(sim, env, sim%step + 1_i8)
