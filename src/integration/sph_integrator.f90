@@ -54,25 +54,44 @@ contains
         real(wp), intent(in) :: dt_stage
         logical, intent(in) :: integrate_density
         logical, intent(in), optional :: transport
-        integer :: i
+        integer :: n
         if (present(transport)) then
             if (transport) then
                 call advance_transport(p, dt_stage)
                 return
             end if
         end if
-        do i = 1, p%n_owned
-            select case (p%kind(i))
-            case (KIND_FLUID, KIND_VIRTUAL)
-                p%x(:, i) = p%x_old(:, i) + dt_stage * p%v(:, i)
-                p%v(:, i) = p%v_old(:, i) + dt_stage * p%dvdt(:, i)
-                if (integrate_density) p%rho(i) = p%rho_old(i) + dt_stage * p%drhodt(i)
-                p%e(i) = p%e_old(i) + dt_stage * p%dedt(i)
-            case (KIND_WALL)
-                if (integrate_density) p%rho(i) = p%rho_old(i) + dt_stage * p%drhodt(i)
-            end select
-        end do
+        n = p%n_owned
+        ! owned particles are fluid, virtual or wall: every density integrated
+        if (integrate_density) p%rho(1:n) = p%rho_old(1:n) + dt_stage * p%drhodt(1:n)
+        call advance_one_stage(n, dt_stage, p%kind, p%x_old, p%v_old, p%e_old, p%dvdt, &
+            p%dedt, p%x, p%v, p%e)
     end subroutine advance
+
+    !> advance's positions, velocities and energies of the moving particles, in a loop the
+    !> compiler vectorises (explicit shapes, as drift_one_level: the per-particle choice it
+    !> replaces was 9 % of a predictor-corrector channel step). A wall's x, v and e are
+    !> kept: q f + q_wall (1 - f) with f 0 or 1 is one or the other exactly.
+    subroutine advance_one_stage(n, dt_stage, kind, x_old, v_old, e_old, dvdt, dedt, x, v, e)
+        integer, intent(in) :: n, kind(n)
+        real(wp), intent(in) :: dt_stage, x_old(3, n), v_old(3, n), e_old(n), dvdt(3, n), &
+            dedt(n)
+        real(wp), intent(inout) :: x(3, n), v(3, n), e(n)
+        real(wp) :: f, g
+        integer :: i
+        do i = 1, n
+            f = merge(1.0_wp, 0.0_wp, kind(i) /= KIND_WALL)
+            g = 1.0_wp - f
+            ! the positions first: they move with the velocity of the state the rates came from
+            x(1, i) = (x_old(1, i) + dt_stage * v(1, i)) * f + x(1, i) * g
+            x(2, i) = (x_old(2, i) + dt_stage * v(2, i)) * f + x(2, i) * g
+            x(3, i) = (x_old(3, i) + dt_stage * v(3, i)) * f + x(3, i) * g
+            v(1, i) = (v_old(1, i) + dt_stage * dvdt(1, i)) * f + v(1, i) * g
+            v(2, i) = (v_old(2, i) + dt_stage * dvdt(2, i)) * f + v(2, i) * g
+            v(3, i) = (v_old(3, i) + dt_stage * dvdt(3, i)) * f + v(3, i) * g
+            e(i) = (e_old(i) + dt_stage * dedt(i)) * f + e(i) * g
+        end do
+    end subroutine advance_one_stage
 
     !> advance for the transport-velocity formulation (density from summation: not integrated).
     subroutine advance_transport(p, dt_stage)
@@ -331,10 +350,19 @@ contains
     !> Largest distance an owned particle has moved since save_step_start.
     pure real(wp) function max_step_displacement(p) result(largest)
         type(particles_t), intent(in) :: p
+        largest = sqrt(largest_square_move(p%n_owned, p%x, p%x_old))
+    end function max_step_displacement
+
+    !> The largest |x - x_old|^2 over 1..n (explicit shapes: a loop the compiler vectorises;
+    !> a norm2 per particle, then the largest, was 3 % of a predictor-corrector step).
+    pure real(wp) function largest_square_move(n, x, x_old) result(largest)
+        integer, intent(in) :: n
+        real(wp), intent(in) :: x(3, n), x_old(3, n)
         integer :: i
         largest = 0.0_wp
-        do i = 1, p%n_owned
-            largest = max(largest, norm2(p%x(:, i) - p%x_old(:, i)))
+        do i = 1, n
+            largest = max(largest, (x(1, i) - x_old(1, i))**2 + (x(2, i) - x_old(2, i))**2 + &
+                (x(3, i) - x_old(3, i))**2)
         end do
-    end function max_step_displacement
+    end function largest_square_move
 end module sph_integrator
