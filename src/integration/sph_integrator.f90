@@ -11,7 +11,8 @@
 !>                 and the estimate v = v_half + dt/2 a^n (rho, e likewise) the rates of the
 !>                 new positions are evaluated with
 !>   verlet_kick   v^{n+1} = v_half + dt/2 a^{n+1} (rho, e likewise)
-!> The half-step values are kept in v_old, rho_old, e_old; x_old holds x^n.
+!> The half-step values are kept in v_old, rho_old, e_old; x_old holds x^n where it is read
+!> (a step that shifts the particles; the sub-cycled levels below).
 !>
 !> Sub-cycled velocity Verlet (multi-resolution runs, &refinement max_subcycles): level L
 !> takes one Verlet step of span H_L = k_L dt over k_L steps dt of the finest level. At its
