@@ -379,6 +379,7 @@ contains
         ! inlines across modules, and the loops cost more than their work)
         call take_scratch(p%n_total, state, handed, paired, flows)
         do j = 1, p%n_total
+            paired(j) = .false.
             if (other_level(p, j, level)) cycle
             state(1, j) = p%v(1, j)
             state(2, j) = p%v(2, j)
@@ -389,7 +390,6 @@ contains
             flows(j) = p%kind(j) == KIND_FLUID .or. p%kind(j) == KIND_VIRTUAL
             handed(:, j) = 0.0_wp
         end do
-        paired(1:p%n_total) = .false.
         do i = 1, p%n_owned
             if (other_level(p, i, level)) cycle
             paired(i) = flows(i)
@@ -598,15 +598,15 @@ contains
                 p%dvdt(3, i) = p%dvdt(3, i) + dv(3)
                 p%dedt(i) = p%dedt(i) + de
                 if (tvf) p%dvdt_background(:, i) = p%dvdt_background(:, i) + dvb
+                ! what the rows before handed on is complete: pairs of owned fluid particles
+                ! are evaluated from the lower index only (a pass over all particles less)
+                if (.not. paired(i)) cycle
+                p%drhodt(i) = p%drhodt(i) + handed(1, i)
+                p%dvdt(1, i) = p%dvdt(1, i) + handed(2, i) + phys%body_force(1)
+                p%dvdt(2, i) = p%dvdt(2, i) + handed(3, i) + phys%body_force(2)
+                p%dvdt(3, i) = p%dvdt(3, i) + handed(4, i) + phys%body_force(3)
+                p%dedt(i) = p%dedt(i) + handed(5, i)
             end do
-        end do
-        do i = 1, p%n_owned
-            if (.not. paired(i)) cycle
-            p%drhodt(i) = p%drhodt(i) + handed(1, i)
-            p%dvdt(1, i) = p%dvdt(1, i) + handed(2, i) + phys%body_force(1)
-            p%dvdt(2, i) = p%dvdt(2, i) + handed(3, i) + phys%body_force(2)
-            p%dvdt(3, i) = p%dvdt(3, i) + handed(4, i) + phys%body_force(3)
-            p%dedt(i) = p%dedt(i) + handed(5, i)
         end do
         call move_alloc(state, kept_scratch%state)
         call move_alloc(handed, kept_scratch%handed)
