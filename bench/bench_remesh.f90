@@ -3,7 +3,8 @@
 !> time step of the same particles before the pass and of the new particles after it. Each
 !> mode runs REPS times on a fresh set; the table gives medians (the pass's range in
 !> brackets): seconds, microseconds per particle and the pass in steps before (the target:
-!> at most 3 steps) and after.
+!> at most 3 steps) and after; then the pass's stages (simulation_t's remesh_stages, in
+!> seconds): new positions, transfer, and the walls and neighbours rebuilt after them.
 !>   mpirun -np N build/bin/sphremesh_bench_remesh [n [mode]]
 !> n x n particles (default 316); mode refine, coarsen or same runs that pass alone (for a
 !> profile of one pass), all three by default.
@@ -18,12 +19,12 @@ program bench_remesh
 
     integer, parameter :: REPS = 3
     character(len=*), parameter :: ROW = '(a,a8,i12,a,i10,es14.3,es14.3,a,es9.2,a,es9.2,a,' // &
-        'f11.3,2f17.2)'
+        'f11.3,2f17.2,f11.4,2f10.4)'
     type(mpi_env_t) :: env
     integer :: n, ierr, mode, rep, first_mode, last_mode
     character(len=16) :: mode_arg
     character(len=8), parameter :: names(3) = [character(len=8) :: 'refine', 'coarsen', 'same']
-    real(wp) :: before(REPS), pass(REPS), after(REPS)
+    real(wp) :: before(REPS), pass(REPS), after(REPS), stages(3, REPS)
     integer(i8) :: n_before, n_after
 
     n = 316
@@ -44,16 +45,19 @@ program bench_remesh
         write(*, '(a,i0,a,i0,a)') '# sphremesh remeshing benchmark, ', env%nranks, &
             ' rank(s), medians of ', REPS, ' passes'
         write(*, '(a)') '# pass      particles before -> after   step before [s]   pass [s] ' // &
-            '[range]          us/particle  pass/step before  pass/step after'
+            '[range]          us/particle  pass/step before  pass/step after' // &
+            '  positions  transfer  rebuild [s]'
     end if
     do mode = first_mode, last_mode
         do rep = 1, REPS
-            call run(mode, before(rep), pass(rep), after(rep), n_before, n_after)
+            call run(mode, before(rep), pass(rep), after(rep), stages(:, rep), n_before, &
+                n_after)
         end do
         if (env%rank == 0) write(*, ROW) '  ', names(mode), n_before, ' -> ', n_after, &
             median(before), median(pass), ' [', minval(pass), '-', maxval(pass), ']', &
             1.0e6_wp * median(pass) / real(max(n_before, n_after), wp), &
-            median(pass) / median(before), median(pass) / median(after)
+            median(pass) / median(before), median(pass) / median(after), &
+            median(stages(1, :)), median(stages(2, :)), median(stages(3, :))
     end do
     call mpi_env_free(env)
     call MPI_Finalize(ierr)
@@ -61,10 +65,10 @@ program bench_remesh
 contains
 
     !> One pass of `mode` on a fresh set: the mean step before it (5 steps) and after it
-    !> (3 steps of the new set), and the pass (wall seconds, slowest rank).
-    subroutine run(mode, step_before, pass_seconds, step_after, n_before, n_after)
+    !> (3 steps of the new set), and the pass (wall seconds, slowest rank) with its stages.
+    subroutine run(mode, step_before, pass_seconds, step_after, stages, n_before, n_after)
         integer, intent(in) :: mode
-        real(wp), intent(out) :: step_before, pass_seconds, step_after
+        real(wp), intent(out) :: step_before, pass_seconds, step_after, stages(3)
         integer(i8), intent(out) :: n_before, n_after
         type(simulation_t) :: sim
         character(len=:), allocatable :: text
@@ -81,6 +85,7 @@ contains
         pass_seconds = MPI_Wtime()
         call simulation_remesh(sim, env, mode)
         pass_seconds = global_max(env, MPI_Wtime() - pass_seconds)
+        stages = sim%remesh_stages
         n_after = global_sum(env, int(sim%p%n_owned, i8))
         step_after = timed_steps(sim, 3)
     end subroutine run

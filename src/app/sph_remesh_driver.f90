@@ -112,6 +112,9 @@ module sph_remesh_driver
         real(wp) :: mass_before = 0.0_wp, mass_after = 0.0_wp
         real(wp) :: momentum_before(3) = 0.0_wp, momentum_after(3) = 0.0_wp
         real(wp) :: seconds = 0.0_wp                !< wall time of the remesh
+        !> of which: the new positions (gathered, made and ordered on rank 0) and the
+        !> transfer of the fields (spread over the ranks), slowest rank each
+        real(wp) :: seconds_positions = 0.0_wp, seconds_transfer = 0.0_wp
         integer :: n_irregular = 0                   !< refinement: cells without a centre
         integer :: n_mass_fallback = 0, n_velocity_fallback = 0   !< transfer fallbacks
         integer :: relax_passes = 0                  !< relaxation passes made (coarsen, same)
@@ -174,7 +177,7 @@ contains
         integer(i8), allocatable :: ids(:), idn(:)
         integer :: n, n_new, my_stat
         integer(i8) :: base
-        real(wp) :: t0, local(4), ghost_ratio
+        real(wp) :: t0, t_transfer, local(4), ghost_ratio
         character(len=:), allocatable :: message
         logical, allocatable :: fluid(:)
 
@@ -212,9 +215,12 @@ contains
         if (refused()) return
         ! rank 0 relaxed the set: every rank reports its passes
         report%relax_passes = int(global_max(env, int(report%relax_passes, i8)))
+        t_transfer = MPI_Wtime()
+        report%seconds_positions = global_max(env, t_transfer - t0)
         ! the new fluid particles in p (each rank those of its part), the others after them
         call spread_transfer(my_stat, message)
         if (refused()) return
+        report%seconds_transfer = global_max(env, MPI_Wtime() - t_transfer)
 
         deallocate(fluid)
         fluid = p%kind(1:p%n_owned) == KIND_FLUID

@@ -90,6 +90,9 @@ module sph_stepper
         character(len=:), allocatable :: snapshot_index   !< one line per snapshot, for XDMF
         character(len=512), allocatable :: checkpoints(:) !< written by this run, oldest first
         real(wp) :: next_remesh_time = huge(1.0_wp)  !< &remesh every_time: when the next is due
+        !> the last remesh's wall seconds (slowest rank): new positions, transfer of the
+        !> fields, and the rebuild after them (walls, partition, migration, neighbours)
+        real(wp) :: remesh_stages(3) = 0.0_wp
         ! multi-resolution (&region): the levels' regions and transition zones, the physics of
         ! each level (level_phys(0) is phys), the next unused global id base (the same on
         ! every rank) and the transition updates' counters since the last log line

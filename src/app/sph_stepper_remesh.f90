@@ -82,6 +82,7 @@ contains
         integer(i8) :: base
         integer :: k, c
         integer, allocatable :: keep(:)
+        real(wp) :: t_rebuild
 
         ! positions wrapped into the box and owned where they lie (the Verlet list may have
         ! been reused since the last rebuild): the remeshing works on the periodic box
@@ -105,6 +106,7 @@ contains
         call remesh_fluid(env, mode, sim%cfg%domain%dimension, dx_old, sim%cfg%domain%box_lo, &
             sim%cfg%domain%box_hi, periodic, h_new, sim%p, report, stat, errmsg, sim%solids)
         if (stat /= 0) call fatal_collective('remesh', errmsg)
+        t_rebuild = MPI_Wtime()
         if (regenerate) then
             ! the fluid first (rank 0 holds it all), then the walls of the lattice at dx_new,
             ! their ids after every fluid id (lattice ids are unique and rank independent),
@@ -134,12 +136,15 @@ contains
         call simulation_prepare_neighbours(sim, env)
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
         sim%rates_stale = .true.
-        call log_remesh(report, mode, dx_old, dx_new, sim%time, sim%step)
+        sim%remesh_stages = [report%seconds_positions, report%seconds_transfer, &
+            global_max(env, MPI_Wtime() - t_rebuild)]
+        call log_remesh(report, sim%remesh_stages, mode, dx_old, dx_new, sim%time, sim%step)
     end subroutine remesh_state
 
-    !> The log lines of one remesh (rank 0 prints).
-    subroutine log_remesh(report, mode, dx_old, dx_new, time, step)
+    !> The log lines of one remesh (rank 0 prints); stages as simulation_t's remesh_stages.
+    subroutine log_remesh(report, stages, mode, dx_old, dx_new, time, step)
         type(remesh_report_t), intent(in) :: report
+        real(wp), intent(in) :: stages(3)
         integer, intent(in) :: mode
         real(wp), intent(in) :: dx_old, dx_new, time
         integer(i8), intent(in) :: step
@@ -162,10 +167,12 @@ contains
             ' ->', report%momentum_after, ' kg m/s (|change| / |before| ', &
             norm2(report%momentum_after - report%momentum_before) / scale, ')'
         call log_info(trim(line))
-        write(line, '(a,f10.3,a,f10.3,a,i0,a,i0,a,i0,a,i0)') '  time ', report%seconds, &
-            ' s (', 1.0e6_wp * report%seconds / &
-            real(max(report%n_before, report%n_after, 1_i8), wp), &
-            ' us per particle); irregular cells ', report%n_irregular, &
+        write(line, '(a,f10.3,a,f10.3,a,3(f9.3,a))') '  time ', sum(stages), ' s (', &
+            1.0e6_wp * sum(stages) / real(max(report%n_before, report%n_after, 1_i8), wp), &
+            ' us per particle): new positions', stages(1), ' s, transfer', stages(2), &
+            ' s, walls and neighbours', stages(3), ' s'
+        call log_info(trim(line))
+        write(line, '(a,i0,a,i0,a,i0,a,i0)') '  irregular cells ', report%n_irregular, &
             ', transfer fallbacks: mass ', report%n_mass_fallback, ', velocity ', &
             report%n_velocity_fallback, '; relaxation passes ', report%relax_passes
         call log_info(trim(line))
