@@ -144,16 +144,19 @@ contains
         logical, intent(in), optional :: given_match(:)
         integer, intent(in), optional :: n_target
         logical, intent(in), optional :: follow_spacing
-        real(wp) :: r_conflict, r_row, bx(3), rc2, r_pair
+        real(wp) :: r_conflict, r_row, bx(3), rc2
         logical :: periodic, follow
         integer, allocatable :: astart(:), adj(:), order(:)
         real(wp), allocatable :: adj_r2(:), d_near(:)
         integer(i8), allocatable :: h(:)
         logical, allocatable :: match(:), disordered(:)
         integer(i8) :: seen
-        integer :: i, k, p, j, t, n_class1, n_left
+        integer :: i, k, p, j, t, n_class1
         integer, allocatable :: rank(:)   !< position of each particle in `order`
-        logical :: ready
+        !> the predecessors of particle i: pred(pstart(i):pstart(i + 1) - 1)
+        integer, allocatable :: pstart(:), pred(:)
+        integer, allocatable :: stack(:), cursor(:)   !< the depth-first tagging's path
+        integer :: depth
 
         if (present(stat)) stat = 0
         n_kept = 0
@@ -198,47 +201,52 @@ contains
         call sort_order(order)
 
         ! The greedy tagging in the order `order`: a particle's tag is the lowest absent
-        ! among the tags of its neighbours before it in the order. Taken in that order the
-        ! particles are visited at random places in memory (the hashed order), which cost
-        ! half of the selection in cache misses. So the particles are swept in storage
-        ! order instead, each tagged once all its neighbours before it in the order are
-        ! (Jones-Plassmann rounds, a sweep using the tags of the same sweep): the tags, and
-        ! so the kept set, are those of the greedy pass exactly, since a particle's tag
-        ! depends only on those neighbours' tags, and none after it in the order is tagged
-        ! before it. The tags seen are the bits of one integer (tags 1-64; 65 when all are
-        ! taken): the lowest absent tag is its lowest clear bit.
+        ! among the tags of its tagging neighbours before it in the order (its
+        ! predecessors). Taken in that order the particles are visited at random places in
+        ! memory (the hashed order), which cost half of the selection in cache misses. So
+        ! the particles are swept in storage order instead, and a particle whose
+        ! predecessors are not all tagged yet has them tagged first, depth first (an
+        ! explicit stack): the tags, and so the kept set, are those of the greedy pass
+        ! exactly, since a particle's tag depends only on its predecessors' tags, and each
+        ! particle is tagged once (sweeps that skipped a particle until its predecessors
+        ! were tagged took 15 rounds, 3.2 visits a particle). The tags seen are the bits of
+        ! one integer (tags 1-64; 65 when all are taken): the lowest absent tag is its
+        ! lowest clear bit.
         allocate(rank(n))
         do k = 1, n
             rank(order(k)) = k
         end do
+        call predecessors()
         tag = 0
-        n_left = n
-        do while (n_left > 0)
-            do i = 1, n
-                if (tag(i) /= 0) cycle
-                seen = 0_i8
-                ready = .true.
-                do p = astart(i), astart(i + 1) - 1
-                    j = adj(p)
-                    if (rank(j) > rank(i)) cycle
-                    if (follow) then
-                        if (disordered(i) .and. disordered(j)) then
-                            r_pair = min(r_conflict, max(R_FILL_MIN * dx, &
-                                r_conflict / dx * min(d_near(i), d_near(j))))
-                            if (adj_r2(p) >= r_pair * r_pair) cycle
-                        end if
-                    end if
-                    if (tag(j) == 0) then
-                        ready = .false.
-                        exit
-                    end if
-                    if (tag(j) <= 64) seen = ibset(seen, tag(j) - 1)
+        allocate(stack(n), cursor(n))
+        do i = 1, n
+            if (tag(i) /= 0) cycle
+            depth = 1
+            stack(1) = i
+            cursor(1) = pstart(i)
+            do while (depth > 0)
+                k = stack(depth)
+                ! the next predecessor not yet tagged goes first
+                do while (cursor(depth) < pstart(k + 1))
+                    if (tag(pred(cursor(depth))) == 0) exit
+                    cursor(depth) = cursor(depth) + 1
                 end do
-                if (.not. ready) cycle
+                if (cursor(depth) < pstart(k + 1)) then
+                    j = pred(cursor(depth))
+                    depth = depth + 1
+                    stack(depth) = j
+                    cursor(depth) = pstart(j)
+                    cycle
+                end if
+                seen = 0_i8
+                do p = pstart(k), pstart(k + 1) - 1
+                    t = tag(pred(p))
+                    if (t <= 64) seen = ibset(seen, t - 1)
+                end do
                 t = 65
                 if (seen /= -1_i8) t = trailz(not(seen)) + 1
-                tag(i) = t
-                n_left = n_left - 1
+                tag(k) = t
+                depth = depth - 1
             end do
         end do
         n_kept = count(tag(1:n) == KEPT_CLASS)
@@ -413,14 +421,43 @@ contains
             astart(n + 1) = m + 1
         end subroutine adjacency_and_parity
 
-        !> Sort indices by (match first, h, id), h compared as unsigned.
+        !> pstart/pred: each particle's tagging neighbours before it in the order; with
+        !> follow, a pair of disordered particles only within their own radius (module
+        !> header).
+        subroutine predecessors()
+            integer :: a, q, b, np
+            real(wp) :: rp
+            allocate(pstart(n + 1), pred(max(astart(n + 1) - 1, 1)))
+            np = 0
+            do a = 1, n
+                pstart(a) = np + 1
+                do q = astart(a), astart(a + 1) - 1
+                    b = adj(q)
+                    if (rank(b) > rank(a)) cycle
+                    if (follow) then
+                        if (disordered(a) .and. disordered(b)) then
+                            rp = min(r_conflict, max(R_FILL_MIN * dx, &
+                                r_conflict / dx * min(d_near(a), d_near(b))))
+                            if (adj_r2(q) >= rp * rp) cycle
+                        end if
+                    end if
+                    np = np + 1
+                    pred(np) = b
+                end do
+            end do
+            pstart(n + 1) = np + 1
+        end subroutine predecessors
+
+        !> Sort indices by (match first, h, id), h compared as unsigned. id_hash is a
+        !> bijection (an added constant, xor-shifts and products by odd numbers modulo 2^64)
+        !> and the ids are unique, so no two hashes tie and the id need not be sorted on.
         subroutine sort_order(o)
             integer, intent(inout) :: o(:)
             integer(i8), allocatable :: keys(:, :)
             integer :: c
-            allocate(keys(3, n))
+            allocate(keys(2, n))
             do c = 1, n
-                keys(:, c) = [merge(0_i8, 1_i8, match(c)), ieor(h(c), ibset(0_i8, 63)), ids(c)]
+                keys(:, c) = [merge(0_i8, 1_i8, match(c)), ieor(h(c), ibset(0_i8, 63))]
             end do
             call sort_by_keys(keys, o)
         end subroutine sort_order

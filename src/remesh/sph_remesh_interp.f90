@@ -240,7 +240,15 @@ contains
             else
                 ! first-order corrected weights: the centroid kept (module header)
                 call weight_moments(dim, nloc, wl, dl, t0, t1)
-                call solve_small(dim, t1, -t0, beta, ok)
+                if (dim == 2) then
+                    ! (the general solve's loops and sections were a tenth of a coarsening's
+                    ! transfer)
+                    beta(3) = 0.0_wp
+                    call solve_2x2(t1(1, 1), t1(1, 2), t1(2, 1), t1(2, 2), -t0(1), -t0(2), &
+                        beta(1), beta(2), ok)
+                else
+                    call solve_small(dim, t1, -t0, beta, ok)
+                end if
                 lowest = 0.0_wp
                 total = 0.0_wp
                 if (ok) then
