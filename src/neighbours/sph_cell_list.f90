@@ -39,6 +39,11 @@ module sph_cell_list
         type(cell_grid_t), allocatable :: grids(:)
     end type neighbour_list_t
 
+    !> Positions of a grid's binned points in its cell order.
+    type :: point_block_t
+        real(wp), allocatable :: x(:, :)
+    end type point_block_t
+
     integer, save :: list_builds = 0   !< builds so far, for neighbour_list_t%generation
 
 contains
@@ -79,6 +84,7 @@ contains
         real(wp) :: xi(3), d1, d2, d3
         real(wp), allocatable :: r2max(:)
         integer, allocatable :: members(:)
+        type(point_block_t), allocatable :: in_cells(:)   !< per level
 
         call reserve_rows(nl, n_query, 40)
         cells = 1
@@ -102,12 +108,29 @@ contains
             call bin_particles(x, n_total, dim, radius / cells, nl%grids(0))
             r2max(0) = radius * radius
         end if
+        ! the binned positions copied in the cell order: a query's candidates are then read
+        ! in runs, not gathered one by one (a refinement's list of 4 x 10^5 particles took a
+        ! quarter of the time after the new positions)
+        allocate(in_cells(0:n_levels - 1))
+        do lv = 0, n_levels - 1
+            associate (grid => nl%grids(lv))
+                if (present(level)) then
+                    k = count(level(1:n_total) == lv)
+                else
+                    k = n_total
+                end if
+                allocate(in_cells(lv)%x(3, max(k, 1)))
+                do b = 1, k
+                    in_cells(lv)%x(:, b) = x(:, grid%sorted(b))
+                end do
+            end associate
+        end do
         pairs = 0
         lv = 0
         do i = 1, n_query
             nl%start(i) = pairs + 1
             if (present(level)) lv = level(i)
-            associate (grid => nl%grids(lv))
+            associate (grid => nl%grids(lv), xs => in_cells(lv)%x)
                 xi = x(:, i)
                 call scan_box(grid, xi, lo, hi, cells)
                 do cz = lo(3), hi(3)
@@ -116,9 +139,9 @@ contains
                         call make_room(nl, pairs, last - first + 1, i, n_query)
                         do k = first, last
                             j = grid%sorted(k)
-                            d1 = xi(1) - x(1, j)
-                            d2 = xi(2) - x(2, j)
-                            d3 = xi(3) - x(3, j)
+                            d1 = xi(1) - xs(1, k)
+                            d2 = xi(2) - xs(2, k)
+                            d3 = xi(3) - xs(3, k)
                             ! written unconditionally, kept by counting it (no branch)
                             nl%index(pairs + 1) = j
                             if (d1**2 + d2**2 + d3**2 < r2max(lv) .and. j /= i) pairs = pairs + 1
