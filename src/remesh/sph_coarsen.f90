@@ -152,7 +152,6 @@ contains
         logical, allocatable :: match(:), disordered(:)
         integer(i8) :: seen
         integer :: i, k, p, j, t, n_class1
-        integer, allocatable :: rank(:)   !< position of each particle in `order`
         !> the predecessors of particle i: pred(pstart(i):pstart(i + 1) - 1)
         integer, allocatable :: pstart(:), pred(:)
         integer, allocatable :: stack(:), cursor(:)   !< the depth-first tagging's path
@@ -198,7 +197,6 @@ contains
         if (present(given_match)) match = given_match(1:n)
         ! a disordered particle's parity is noise that would order it by stripes of space
         if (follow) match = match .and. .not. disordered
-        call sort_order(order)
 
         ! The greedy tagging in the order `order`: a particle's tag is the lowest absent
         ! among the tags of its tagging neighbours before it in the order (its
@@ -211,11 +209,9 @@ contains
         ! particle is tagged once (sweeps that skipped a particle until its predecessors
         ! were tagged took 15 rounds, 3.2 visits a particle). The tags seen are the bits of
         ! one integer (tags 1-64; 65 when all are taken): the lowest absent tag is its
-        ! lowest clear bit.
-        allocate(rank(n))
-        do k = 1, n
-            rank(order(k)) = k
-        end do
+        ! lowest clear bit. Which of two neighbours comes first is decided from their keys
+        ! (comes_before); the whole order is sorted only when the count asks for it (the
+        ! fill pass and the cut below), as a near-lattice's class 1 has it exactly.
         call predecessors()
         tag = 0
         allocate(stack(n), cursor(n))
@@ -252,9 +248,11 @@ contains
         n_kept = count(tag(1:n) == KEPT_CLASS)
         if (present(n_target)) then
             if (n_kept < n_target) then
+                call sort_order(order)
                 call fill_to_target(n_target)
             else if (follow .and. n_kept > n_target) then
                 ! the first n_target of class 1 in the tagging order stay
+                call sort_order(order)
                 n_class1 = 0
                 do k = 1, n
                     i = order(k)
@@ -433,7 +431,7 @@ contains
                 pstart(a) = np + 1
                 do q = astart(a), astart(a + 1) - 1
                     b = adj(q)
-                    if (rank(b) > rank(a)) cycle
+                    if (.not. comes_before(b, a)) cycle
                     if (follow) then
                         if (disordered(a) .and. disordered(b)) then
                             rp = min(r_conflict, max(R_FILL_MIN * dx, &
@@ -447,6 +445,17 @@ contains
             end do
             pstart(n + 1) = np + 1
         end subroutine predecessors
+
+        !> Whether particle b comes before particle a in the tagging order: matching first,
+        !> then by h (unsigned), as sort_order sorts (h never ties: see there).
+        pure logical function comes_before(b, a)
+            integer, intent(in) :: b, a
+            if (match(b) .neqv. match(a)) then
+                comes_before = match(b)
+            else
+                comes_before = ieor(h(b), ibset(0_i8, 63)) < ieor(h(a), ibset(0_i8, 63))
+            end if
+        end function comes_before
 
         !> Sort indices by (match first, h, id), h compared as unsigned. id_hash is a
         !> bijection (an added constant, xor-shifts and products by odd numbers modulo 2^64)
