@@ -738,12 +738,11 @@ contains
             integer :: kk, jj, mm, nw
             real(wp) :: dd(3), rr2, gw
             nw = 0
-            do kk = nl%start(iw), nl%start(iw + 1) - 1
-                jj = nl%index(kk)
-                if (repulsive_only(phys, p%kind(jj))) cycle
-                ! walls are rigid: a belt (lid) sliding past a resting wall does not compress
-                ! either of them, so only the fluid changes a wall particle's density
-                if (p%kind(jj) == KIND_WALL) cycle
+            ! walls are rigid: a belt (lid) sliding past a resting wall does not compress
+            ! either of them, so only the fluid changes a wall particle's density: the halved
+            ! row holds the partners that are not walls
+            do kk = kept_scratch%half_start(iw), kept_scratch%half_start(iw + 1) - 1
+                jj = kept_scratch%half_index(kk)
                 dd(1) = p%x(1, iw) - p%x(1, jj)
                 dd(2) = p%x(2, iw) - p%x(2, jj)
                 dd(3) = p%x(3, iw) - p%x(3, jj)
@@ -770,8 +769,8 @@ contains
 
     !> The rows of list nl that compute_rates evaluates (kept_scratch's half rows, made
     !> once per list): a pair of two owned fluid particles (real or virtual) is evaluated
-    !> from its lower index only, so the other's row drops it; the rows of the other owned
-    !> particles (walls), which compute_rates does not scan, are left empty. A
+    !> from its lower index only, so the other's row drops it; a wall's row keeps the
+    !> partners that are not walls (the fluid and mirrors its density rate sums over). A
     !> particle does not change between fluid and wall while a list lasts (only fluid and
     !> virtual turn into each other), so the rows hold until the next build. Scanning the
     !> whole rows and skipping the shared pairs one by one cost a tenth of the rates.
@@ -793,6 +792,15 @@ contains
             n_half = 0
             do i = 1, p%n_owned
                 sc%half_start(i) = n_half + 1
+                if (p%kind(i) == KIND_WALL) then
+                    ! a wall's density follows the fluid around it only (wall_density_rate)
+                    do k = nl%start(i), nl%start(i + 1) - 1
+                        j = nl%index(k)
+                        if (p%kind(j) == KIND_WALL) cycle
+                        n_half = n_half + 1
+                        sc%half_index(n_half) = j
+                    end do
+                end if
                 if (.not. moves_with_flow(p%kind(i))) cycle
                 do k = nl%start(i), nl%start(i + 1) - 1
                     j = nl%index(k)
