@@ -457,9 +457,10 @@ contains
             end if
         end function comes_before
 
-        !> Sort indices by (match first, h, id), h compared as unsigned. id_hash is a
-        !> bijection (an added constant, xor-shifts and products by odd numbers modulo 2^64)
-        !> and the ids are unique, so no two hashes tie and the id need not be sorted on.
+        !> Sort indices in the tagging order: match first, then h compared as unsigned (the
+        !> module header's order; its last key, the id, never decides: id_hash is a
+        !> bijection, an added constant, xor-shifts and products by odd numbers modulo 2^64,
+        !> and the ids are unique, so no two hashes tie).
         subroutine sort_order(o)
             integer, intent(inout) :: o(:)
             integer(i8), allocatable :: keys(:, :)
