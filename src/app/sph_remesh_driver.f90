@@ -111,9 +111,8 @@ module sph_remesh_driver
         integer(i8) :: n_before = 0, n_after = 0    !< fluid particles
         real(wp) :: mass_before = 0.0_wp, mass_after = 0.0_wp
         real(wp) :: momentum_before(3) = 0.0_wp, momentum_after(3) = 0.0_wp
-        real(wp) :: seconds = 0.0_wp                !< wall time of the remesh
-        !> of which: the new positions (gathered, made and ordered on rank 0) and the
-        !> transfer of the fields (spread over the ranks), slowest rank each
+        !> wall seconds (slowest rank) of the new positions (gathered, made and ordered on
+        !> rank 0) and of the transfer of the fields (spread over the ranks)
         real(wp) :: seconds_positions = 0.0_wp, seconds_transfer = 0.0_wp
         integer :: n_irregular = 0                   !< refinement: cells without a centre
         integer :: n_mass_fallback = 0, n_velocity_fallback = 0   !< transfer fallbacks
@@ -227,7 +226,6 @@ contains
         call fluid_totals(p, fluid, local)
         report%n_after = global_sum(env, int(count(fluid), i8))
         call unpack_totals(global_sum(env, local), report%mass_after, report%momentum_after)
-        report%seconds = global_max(env, MPI_Wtime() - t0)
 
     contains
 
