@@ -125,6 +125,12 @@ module sph_stepper
         !> the particles' rates do not belong to their current state (set-up, a restart from
         !> a checkpoint without Verlet rates, a remesh, shifting): verlet evaluates them first
         logical :: rates_stale = .true.
+        !> the largest speed and acceleration (over all ranks) that the last Verlet kick found,
+        !> for the next step's limits, and the step they belong to (-1: none). Every rate
+        !> evaluation voids them; so does anything that changes the particles after a kick,
+        !> since it sets rates_stale and the next step evaluates the rates first.
+        real(wp) :: kick_maxima(2) = 0.0_wp
+        integer(i8) :: kick_maxima_step = -1
         !> multi-resolution Verlet (sph_integrator's sub-cycled form; with &refinement
         !> max_subcycles > 1 coarser levels take longer steps): the steps of the
         !> finest level that each level's step spans in the current cycle, each level's
@@ -702,9 +708,11 @@ contains
         call prepare_boundaries(sim, dt)
         call filter_density(sim, env, sim%step + 1_i8)
         call evaluate_rates(sim, env)
-        call verlet_kick(sim%p, dt, integrated_density(sim))
+        call verlet_kick(sim%p, dt, integrated_density(sim), sim%kick_maxima)
+        sim%kick_maxima = global_max(env, sim%kick_maxima)
         sim%time = sim%time + dt
         sim%step = sim%step + 1
+        sim%kick_maxima_step = sim%step
         sim%last_limits%dt = dt
         ! shifting moves the particles after the rates were evaluated
         call shift(sim, env, dt)

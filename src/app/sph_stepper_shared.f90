@@ -141,6 +141,7 @@ contains
     module procedure evaluate_rates
         integer :: previous
         call timers_enter(sim%timers, TIMER_RATES, previous)
+        sim%kick_maxima_step = -1
         if (sim%timers%current /= TIMER_IDLE) sim%timers%rate_evaluations = &
             sim%timers%rate_evaluations + 1
         if (multires(sim)) then
@@ -315,7 +316,12 @@ contains
 
     module procedure stable_timestep
         real(wp) :: maxima(2), h
-        maxima = global_max(env, local_motion_maxima(sim%p, sim%phys%transport_velocity))
+        ! the last Verlet kick's, while nothing has changed the particles since
+        if (sim%kick_maxima_step == sim%step) then
+            maxima = sim%kick_maxima
+        else
+            maxima = global_max(env, local_motion_maxima(sim%p, sim%phys%transport_velocity))
+        end if
         ! the finest level's smoothing length sets the step
         h = sim%phys%kernel%h
         if (multires(sim)) h = minval(sim%level_phys(:)%kernel%h)

@@ -165,20 +165,52 @@ contains
     end subroutine drift_one_level
 
     !> The second half kick of velocity Verlet with the rates of the new positions (one
-    !> resolution level, as verlet_drift).
-    subroutine verlet_kick(p, dt, integrate_density)
+    !> resolution level, as verlet_drift). maxima: the largest speed and acceleration
+    !> magnitude among the owned fluid and virtual particles after the kick, as
+    !> sph_rates' local_motion_maxima finds them without the transport velocity (the next
+    !> step's limits, found here while the values are at hand: a pass over the particles
+    !> less).
+    subroutine verlet_kick(p, dt, integrate_density, maxima)
         type(particles_t), intent(inout) :: p
         real(wp), intent(in) :: dt
         logical, intent(in) :: integrate_density
-        real(wp) :: h2
+        real(wp), intent(out), optional :: maxima(2)
+        real(wp) :: h2, speed2, accel2
         integer :: n
         ! verlet_kick_levels with one level, vectorised as verlet_drift (the same values)
         h2 = 0.5_wp * dt
         n = p%n_owned
         if (integrate_density) p%rho(1:n) = p%rho_old(1:n) + h2 * p%drhodt(1:n)
-        call from_start(n, h2, p%kind, p%v_old, p%dvdt, p%v)
-        call from_start_scalar(n, h2, p%kind, p%e_old, p%dedt, p%e)
+        call kick_one_level(n, h2, p%kind, p%v_old, p%dvdt, p%e_old, p%dedt, p%v, p%e, &
+            speed2, accel2)
+        if (present(maxima)) maxima = sqrt([speed2, accel2])
     end subroutine verlet_kick
+
+    !> verlet_kick's update of velocities and energies (explicit shapes, as drift_one_level),
+    !> with the largest |v|^2 and |dv/dt|^2 of the fluid and virtual particles.
+    subroutine kick_one_level(n, h2, kind, v_old, dvdt, e_old, dedt, v, e, speed2, accel2)
+        integer, intent(in) :: n, kind(n)
+        real(wp), intent(in) :: h2, v_old(3, n), dvdt(3, n), e_old(n), dedt(n)
+        real(wp), intent(inout) :: v(3, n), e(n)
+        real(wp), intent(out) :: speed2, accel2
+        real(wp) :: f, g, c
+        integer :: i
+        speed2 = 0.0_wp
+        accel2 = 0.0_wp
+        do i = 1, n
+            ! as from_start: f 1 for the moving particles, 0 for walls; c 1 for those the
+            ! maxima count (fluid, virtual: every owned particle but walls)
+            f = merge(1.0_wp, 0.0_wp, kind(i) /= KIND_WALL)
+            g = 1.0_wp - f
+            c = merge(1.0_wp, 0.0_wp, kind(i) == KIND_FLUID .or. kind(i) == KIND_VIRTUAL)
+            v(1, i) = (v_old(1, i) + h2 * dvdt(1, i)) * f + v(1, i) * g
+            v(2, i) = (v_old(2, i) + h2 * dvdt(2, i)) * f + v(2, i) * g
+            v(3, i) = (v_old(3, i) + h2 * dvdt(3, i)) * f + v(3, i) * g
+            e(i) = (e_old(i) + h2 * dedt(i)) * f + e(i) * g
+            speed2 = max(speed2, c * (v(1, i)**2 + v(2, i)**2 + v(3, i)**2))
+            accel2 = max(accel2, c * (dvdt(1, i)**2 + dvdt(2, i)**2 + dvdt(3, i)**2))
+        end do
+    end subroutine kick_one_level
 
     !> q = q_old + s rate for the moving particles among 1..n (fluid, virtual), a wall's q
     !> kept: advance's stages (x, v) and verlet_kick's half kick (v). Explicit shapes, as
