@@ -401,15 +401,15 @@ contains
         !> than WALL_GAP sp to a solid is not made.
         subroutine place_plane_rows(sp)
             real(wp), intent(in) :: sp
-            real(wp), allocatable :: row_sum(:), delta(:), d(:)
+            real(wp), allocatable :: row_sum(:), delta(:), d(:, :)
             integer, allocatable :: row_count(:), facing(:)
-            real(wp) :: y(3), u(3), z(3)
+            real(wp) :: u(3), z(3)
             integer :: a, s, t, ns, near
             if (.not. present(solids)) return
             if (.not. allocated(solids%list)) return
             if (.not. any(solids%list(:)%shape == SOLID_PLANE)) return
             ns = size(solids%list)
-            allocate(row_sum(ns), row_count(ns), delta(ns), d(ns), facing(ns))
+            allocate(row_sum(ns), row_count(ns), delta(ns), facing(ns), d(ns, n_new))
             ! the facing wall of each plane (0: none)
             facing = 0
             do s = 1, ns
@@ -420,30 +420,37 @@ contains
                         facing(s) = t
                 end do
             end do
-            ! each plane's first row
+            ! every particle's distances from the planes, and each plane's first row
             row_sum = 0.0_wp
             row_count = 0
             do a = 1, n_new
-                call plane_distances(xn(:, a) + box_lo, d, near)
-                if (near == 0) cycle
-                if (d(near) >= sp) cycle
-                row_sum(near) = row_sum(near) + d(near)
+                near = 0
+                do s = 1, ns
+                    d(s, a) = huge(1.0_wp)
+                    if (solids%list(s)%shape /= SOLID_PLANE) cycle
+                    d(s, a) = solid_distance(solids%list(s), xn(:, a) + box_lo)
+                    if (near == 0) then
+                        near = s
+                    else if (d(s, a) < d(near, a)) then
+                        near = s
+                    end if
+                end do
+                if (d(near, a) >= sp) cycle
+                row_sum(near) = row_sum(near) + d(near, a)
                 row_count(near) = row_count(near) + 1
             end do
             delta = 0.0_wp
             where (row_count > 0) delta = 0.5_wp * sp - row_sum / max(row_count, 1)
             do a = 1, n_new
-                y = xn(:, a) + box_lo
-                call plane_distances(y, d, near)
                 u = 0.0_wp
                 do s = 1, ns
                     if (solids%list(s)%shape /= SOLID_PLANE) cycle
                     t = facing(s)
                     if (t > 0) then
-                        if (d(s) + d(t) > 0.0_wp) u = u + delta(s) * d(t) / (d(s) + d(t)) * &
-                            solids%list(s)%normal
+                        if (d(s, a) + d(t, a) > 0.0_wp) u = u + delta(s) * d(t, a) / &
+                            (d(s, a) + d(t, a)) * solids%list(s)%normal
                     else
-                        u = u + delta(s) * max(0.0_wp, 1.0_wp - d(s) / (WALL_BAND * sp)) * &
+                        u = u + delta(s) * max(0.0_wp, 1.0_wp - d(s, a) / (WALL_BAND * sp)) * &
                             solids%list(s)%normal
                     end if
                 end do
@@ -452,26 +459,6 @@ contains
                 if (clear_of_solids(z, WALL_GAP * sp)) xn(:, a) = z
             end do
         end subroutine place_plane_rows
-
-        !> The distances d(s) of point y (absolute) from the plane solids s (huge for the
-        !> others) and the nearest plane (0: none).
-        subroutine plane_distances(y, d, near)
-            real(wp), intent(in) :: y(3)
-            real(wp), intent(out) :: d(:)
-            integer, intent(out) :: near
-            integer :: s
-            d = huge(1.0_wp)
-            near = 0
-            do s = 1, size(solids%list)
-                if (solids%list(s)%shape /= SOLID_PLANE) cycle
-                d(s) = solid_distance(solids%list(s), y)
-                if (near == 0) then
-                    near = s
-                else if (d(s) < d(near)) then
-                    near = s
-                end if
-            end do
-        end subroutine plane_distances
 
         !> Rank 0: the new set xn/idn in increasing id order.
         subroutine in_id_order()
