@@ -397,8 +397,11 @@ contains
         !> (d_s + d_t) along the other: the move varies linearly across the channel, so the
         !> rows stay evenly spaced (when both walls want the same shift, as a set of every
         !> other fine row does, the whole set moves by it); next to a wall that faces none the
-        !> move fades out over WALL_BAND spacings. A move that would bring a particle closer
-        !> than WALL_GAP sp to a solid is not made.
+        !> move fades out over WALL_BAND spacings. A particle left within WALL_GAP sp of a
+        !> plane (a disordered first row, spread over the gap, whose mean barely moves) is put
+        !> on the gap's edge; a move that would bring a particle within the gap of a body is
+        !> not made. (Measured on the lid-driven cavity coarsened at 0.02 s: without that
+        !> edge 23 of 625 particles ended within the gap, down to 0.15 spacings.)
         subroutine place_plane_rows(sp)
             real(wp), intent(in) :: sp
             real(wp), allocatable :: row_sum(:), delta(:), d(:, :)
@@ -454,9 +457,17 @@ contains
                             solids%list(s)%normal
                     end if
                 end do
+                ! a particle of a disordered first row that still lies within the gap (the
+                ! row's mean barely moves where it is spread over the gap) is put on its edge
+                do s = 1, ns
+                    if (solids%list(s)%shape /= SOLID_PLANE) cycle
+                    u = u + max(0.0_wp, WALL_GAP * sp - (d(s, a) + dot_product(u, &
+                        solids%list(s)%normal))) * solids%list(s)%normal
+                end do
                 u(dim + 1:) = 0.0_wp
                 z = xn(:, a) + u
-                if (clear_of_solids(z, WALL_GAP * sp)) xn(:, a) = z
+                ! (the planes' gaps hold by construction)
+                if (clear_of_solids(z, WALL_GAP * sp, curved_only=.true.)) xn(:, a) = z
             end do
         end subroutine place_plane_rows
 
