@@ -82,7 +82,7 @@ module sph_remesh_driver
         migrate_particles
     use sph_halo, only: halo_t, halo_setup, halo_build, halo_reverse_sum
     use sph_refine, only: refine_positions, WALL_BAND
-    use sph_solids, only: solids_t, solid_distance, solid_reflect, SOLID_PLANE
+    use sph_solids, only: solids_t, solid_distance, solid_reflect, facing_plane, SOLID_PLANE
     use sph_remesh_relax, only: relax_displacements, relax_list_t, RELAX_PASSES, RELAX_H_FACTOR, &
         RELAX_TOLERANCE
     use sph_coarsen, only: coarsen_select
@@ -414,15 +414,7 @@ contains
             ns = size(solids%list)
             allocate(row_sum(ns), row_count(ns), delta(ns), facing(ns), d(ns, n_new))
             ! the facing wall of each plane (0: none)
-            facing = 0
-            do s = 1, ns
-                if (solids%list(s)%shape /= SOLID_PLANE) cycle
-                do t = 1, ns
-                    if (t == s .or. solids%list(t)%shape /= SOLID_PLANE) cycle
-                    if (dot_product(solids%list(s)%normal, solids%list(t)%normal) < -0.999_wp) &
-                        facing(s) = t
-                end do
-            end do
+            facing = [(facing_plane(solids, s), s = 1, ns)]
             ! every particle's distances from the planes, and each plane's first row
             row_sum = 0.0_wp
             row_count = 0

@@ -16,7 +16,7 @@ module sph_solids
     implicit none
     private
     public :: solid_t, solids_t, solids_add_plane, solid_distance, solid_normal
-    public :: solid_velocity, solid_reflect, deepest_solid, solids_add_body
+    public :: solid_velocity, solid_reflect, deepest_solid, solids_add_body, facing_plane
     public :: SOLID_PLANE, SOLID_CIRCLE, SOLID_SPHERE, SOLID_CYLINDER, SOLID_RECTANGLE
     public :: SOLID_BOX
 
@@ -223,4 +223,18 @@ contains
             end if
         end do
     end function deepest_solid
+    !> The plane facing plane s across the fluid (the other plane with the opposite normal: the
+    !> two walls of a channel), 0 when s is not a plane or no plane faces it.
+    pure integer function facing_plane(solids, s) result(t_face)
+        type(solids_t), intent(in) :: solids
+        integer, intent(in) :: s
+        integer :: t
+        t_face = 0
+        if (.not. allocated(solids%list)) return
+        if (solids%list(s)%shape /= SOLID_PLANE) return
+        do t = 1, size(solids%list)
+            if (t == s .or. solids%list(t)%shape /= SOLID_PLANE) cycle
+            if (dot_product(solids%list(s)%normal, solids%list(t)%normal) < -0.999_wp) t_face = t
+        end do
+    end function facing_plane
 end module sph_solids

@@ -52,42 +52,58 @@
 !> spacing from it, while the regenerated wall particles sit at -dx_new/2, -3 dx_new/2, ...
 !> (a gap of a whole new spacing instead of half of one). So:
 !>  1. Mirrors. Every particle with 0 <= d < MIRROR_DEPTH dx (2 dx: two old rows) is mirrored
-!>     across each such surface (sph_solids' solid_reflect: x - 2 d n) with id s span + id,
-!>     span = 1 + the largest id, s the solid's number; the construction runs on the set and
+!>     across each such surface (sph_solids' solid_reflect: x - 2 d n) with id c span + id,
+!>     span = 1 + the largest id, c the solid's number; the construction runs on the set and
 !>     its mirrors, so the cells that straddle a surface (a particle, its mirror and their
 !>     neighbours) get their midpoints and centres, ON the surface (d = 0 for a plane: a new
 !>     row at the wall, as dense as the others). What lies deeper than dx/4 inside a solid
-!>     (the mirrors' own rows, at <= -dx/2) is dropped.
-!>  2. Band map. A new position at distance d1 from its nearest solid is moved along that
-!>     solid's normal to g(d1) = dx/4 + d1 (b - dx/4) / b when d1 < b (d1 < 0 counts as 0),
-!>     b = min(WALL_BAND dx_new, (d1 + d2) / 2), d2 the distance to the next solid: the row
-!>     on the surface goes to half a NEW spacing, the rows behind it are compressed evenly by
-!>     (b - dx/4) / b (1 - 1/80 for WALL_BAND = 20 new spacings), beyond b nothing moves; b
-!>     ends half-way to the next solid, where the maps of both are the identity, so the map
-!>     is continuous and monotone across a channel. The map is smooth, so the disorder of the
-!>     old set (and of the midpoint construction inside) is kept; only distances along the
-!>     normal shrink slightly in the band.
-!>  3. Thinning (below). Next to a curved or staircase surface (Morris' lattice bodies leave
+!>     (the mirrors' own rows, at <= -dx/2) is dropped. Next to a corner of paired planes
+!>     (rule 2) a particle is also mirrored across two (in 3D three) of them that meet at
+!>     right angles (codes above the solids' numbers), so that the corner's cell gets its
+!>     centre too.
+!>  2. Paired planes (facing walls: opposite normals, sph_solids' facing_plane). Between two
+!>     walls M old rows apart the construction has 2 M + 1 rows, 0, dx/2, ..., M dx, one on
+!>     each surface, where the lattice of spacing dx/2 has 2 M, at dx/4, 3 dx/4, ...,
+!>     M dx - dx/4. So the row on the lower-numbered plane of each pair is dropped (d <
+!>     SURFACE_TOL dx: the mirrors put it there exactly) and every point is shifted by dx/4
+!>     towards that plane: a uniform shift keeps the set's disorder as it is, and a lattice
+!>     between the walls (a developed channel flow) refines to the lattice, 2^dim N exactly,
+!>     first rows half a new spacing off each wall (pair_map: the few points that the flow's
+!>     disorder puts closer than dx/2 to the dropped plane, or behind the other one, are
+!>     squeezed so that none ends closer than dx/8, continuously and monotonically). The
+!>     shift fades out over the band towards any other solid (a body in a channel), whose
+!>     own band map (3) applies. In a closed box every pair drops one surface row: the
+!>     lattice again, the corners' centres from the corner mirrors. Before, the band map (3)
+!>     applied to the walls too: both surface rows stayed, 2 M + 1 rows compressed by
+!>     (M - 1/2) / M (200 -> 820, not 800, for the L/20 Poiseuille channel, the refined
+!>     flow's masses 1/40 smaller and its error at 1 s 1.17x that of the run made at L/40
+!>     throughout).
+!>  3. Band map (other solids: bodies, a plane that faces none). A new position at distance d1
+!>     from its nearest such solid is moved along that solid's normal to g(d1) = dx/4 + d1 (b
+!>     - dx/4) / b when d1 < b (d1 < 0 counts as 0), b = min(WALL_BAND dx_new, (d1 + d2) /
+!>     2), d2 the distance to the next solid: the row on the surface goes to half a NEW
+!>     spacing, the rows behind it are compressed evenly by (b - dx/4) / b (1 - 1/80 for
+!>     WALL_BAND = 20 new spacings), beyond b nothing moves; b ends half-way to the next
+!>     solid, where the maps of both are the identity, so the map is continuous and monotone.
+!>     The map is smooth, so the disorder of the old set (and of the midpoint construction
+!>     inside) is kept; only distances along the normal shrink slightly in the band.
+!>  4. Thinning (below). Next to a curved or staircase surface (Morris' lattice bodies leave
 !>     particles 0.1 dx from it) a particle and its mirror are close, and their cells give
 !>     clumps and, where d < 0 collapses onto dx/4, duplicates; the moved points (old ones
-!>     included) are thinned like the constructed ones. Nothing is dropped next to a plane
-!>     wall (all pairs >= 0.97 dx_new there). Morris' cylinder lattice (t = 0): L/50 2168 ->
-!>     8611 (3.97 N), minimum pair 0.975 dx_new; L/25 528 -> 2067 (3.91 N), 0.725 dx_new; the
-!>     particles left where clumps were thinned carry up to twice the median mass.
+!>     included; a uniform shift does not count as a move) are thinned like the constructed
+!>     ones. Nothing is dropped next to a plane wall (all pairs >= 0.97 dx_new there).
+!>     Morris' cylinder lattice (t = 0): L/50 2168 -> 8611 (3.97 N), minimum pair 0.975
+!>     dx_new; L/25 528 -> 2067 (3.91 N), 0.725 dx_new; the particles left where clumps were
+!>     thinned carry up to twice the median mass.
 !> Result: first row at dx/4 = dx_new/2 from each surface (exactly for a plane; for
 !> a curved surface the mirrored cells are centred on it to O(dx^2 / R)), no gap, nothing
-!> inside; the count is 2^dim N + about one new row per surface minus the half row the set
-!> lacked next to it: between two walls 2 M + 1 new rows where M old rows ask for 2 M (200 ->
-!> 820, not 800, for the L/20 Poiseuille channel: the band is 1/40 denser, and its particles
-!> get correspondingly smaller masses from the transfer). Poiseuille L/20 at 0.5 s refined and
-!> continued at L/40: relative L2 error 0.206 % at 1 s against 0.174 % for L/40 from the start
-!> (0.81 % with a band of 8 spacings, 0.25 % with 16: the denser the band, the larger the
-!> error; the previous rule without mirrors, 3.7 %). The conservative transfer
+!> inside; between paired planes 2^dim N (the lattice where the old set is one); next to a
+!> body or a lone plane about one new row more per surface, less the half row the set lacked
+!> next to it. The conservative transfer
 !> (sph_remesh_driver) mirrors the old and new particles next to solids in the same way, so
 !> the particles of the first row get a full stencil and masses that match their volume.
-!> Corners (a particle near two solids) are mirrored across each, not across the corner.
 !>
-!> Gap filling (optional n_target, rule 4). A developed flow that has clumped (Morris' cylinder
+!> Gap filling (optional n_target, rule 5). A developed flow that has clumped (Morris' cylinder
 !> at 1500 s: pairs 0.1 dx apart, gaps between the clumps wider than EDGE_FACTOR dx) gives no
 !> midpoints across its gaps and no centres in its irregular cells: 2.66 N (L/25) and 2.79 N
 !> (L/50) instead of 4 N. Given n_target, the midpoints and then the quarter points of the old
@@ -117,7 +133,7 @@ module sph_refine
     use sph_remesh_images, only: with_periodic_images
     use sph_coarsen, only: id_hash
     use sph_key_sort, only: sort_by_keys
-    use sph_solids, only: solids_t, solid_distance, solid_normal, solid_reflect
+    use sph_solids, only: solids_t, solid_distance, solid_normal, solid_reflect, facing_plane
     implicit none
     private
     public :: refine_positions, wall_map, EDGE_FACTOR, MIRROR_DEPTH, WALL_BAND, MIN_GAP
@@ -131,7 +147,7 @@ module sph_refine
     !> smallest distance (in new spacings) a constructed or moved point keeps from the points
     !> kept before it (thinning, see the header)
     real(wp), parameter :: MIN_GAP = 0.4_wp
-    !> gap filling (header, rule 4): the farthest old pairs whose midpoints are candidates
+    !> gap filling (header, rule 5): the farthest old pairs whose midpoints are candidates
     !> (in old spacings), and the distance (in new spacings) a filled point keeps from every
     !> point
     real(wp), parameter :: FILL_PAIR_MAX = 2.0_wp
@@ -139,6 +155,9 @@ module sph_refine
     real(wp), parameter :: FILL_GAP = 0.45_wp
     !> the construction is kept as it is when at most this fraction short of the target
     real(wp), parameter :: FILL_SLACK = 0.01_wp
+    !> paired planes (header, rule 2): a point closer than this (in old spacings) to the plane
+    !> whose surface row is dropped lies on it (the mirror construction puts it there exactly)
+    real(wp), parameter :: SURFACE_TOL = 1.0e-6_wp
 
 contains
 
@@ -165,9 +184,11 @@ contains
         real(wp), allocatable :: xa(:, :)
         integer(i8), allocatable :: ida(:)
         logical, allocatable :: keep(:), moved(:)
-        real(wp) :: org(3), d, d1, d2, b, band, wb, y(3)
+        integer, allocatable :: partner(:), near(:)
+        real(wp) :: org(3), d, band, wb, y(3)
         integer(i8) :: span
-        integer :: na, a, s, s1, k, ns, st
+        integer :: na, a, s, s1, s2, s3, k, ns, nn, st, n_codes
+        logical :: pairs_on
 
         st = 0
         ns = 0
@@ -182,10 +203,18 @@ contains
             call construct_positions(dim, n, x, ids, dx, n_new, x_new, key, st, errmsg, box, &
                 n_irregular)
         else
+            ! facing planes (a channel's walls): one surface row of each pair is dropped and
+            ! the set shifted by a quarter of an old spacing (header, rule 2); not without a
+            ! band (same-level remeshing drops the rows on all surfaces)
+            band = wb * 0.5_wp * dx
+            partner = [(facing_plane(solids, s), s = 1, ns)]
+            pairs_on = band > 0.25_wp * dx .and. any(partner > 0)
+            ! mirror codes: s (one surface), then pairs and triples of planes at right angles
+            n_codes = ns + ns**2 + ns**3
             ! the set and its mirror images across every surface within MIRROR_DEPTH dx
             span = 1_i8
             if (n > 0) span = maxval(ids(1:n)) + 1_i8
-            if (span > 2_i8**61 / int(ns + 1, i8)) then
+            if (span > 2_i8**61 / int(n_codes + 1, i8)) then
                 n_new = 0
                 allocate(x_new(3, 0), key(2, 0))
                 st = 1
@@ -204,50 +233,48 @@ contains
                 do a = 1, n
                     d = solid_distance(solids%list(s), x(:, a) + org)
                     if (d < 0.0_wp .or. d >= MIRROR_DEPTH * dx) cycle
-                    na = na + 1
-                    xa(:, na) = solid_reflect(solids%list(s), x(:, a) + org) - org
-                    xa(dim + 1:, na) = 0.0_wp
-                    ida(na) = int(s, i8) * span + ids(a)
+                    call add_mirror(solid_reflect(solids%list(s), x(:, a) + org), s, a)
                 end do
             end do
+            ! the corners of paired planes: mirrored across two (and in 3D three) of them at
+            ! right angles too, so that the corner's cell gets its centre, which the kept
+            ! surfaces' rows need (without it a closed box lacks the particle of one corner)
+            if (pairs_on) then
+                allocate(near(ns))
+                do a = 1, n
+                    nn = 0
+                    do s = 1, ns
+                        if (partner(s) == 0) cycle
+                        d = solid_distance(solids%list(s), x(:, a) + org)
+                        if (d < 0.0_wp .or. d >= MIRROR_DEPTH * dx) cycle
+                        nn = nn + 1
+                        near(nn) = s
+                    end do
+                    do s1 = 1, nn - 1
+                        do s2 = s1 + 1, nn
+                            if (.not. at_right_angles(near(s1), near(s2))) cycle
+                            y = solid_reflect(solids%list(near(s2)), &
+                                solid_reflect(solids%list(near(s1)), x(:, a) + org))
+                            call add_mirror(y, ns + (near(s1) - 1) * ns + near(s2), a)
+                            do s3 = s2 + 1, nn
+                                if (.not. at_right_angles(near(s1), near(s3)) .or. &
+                                    .not. at_right_angles(near(s2), near(s3))) cycle
+                                call add_mirror(solid_reflect(solids%list(near(s3)), y), &
+                                    ns + ns**2 + ((near(s1) - 1) * ns + near(s2) - 1) * ns &
+                                    + near(s3), a)
+                            end do
+                        end do
+                    end do
+                end do
+            end if
             call construct_positions(dim, na, xa, ida, dx, n_new, x_new, key, st, errmsg, box, &
                 n_irregular)
             if (st == 0) then
-                ! drop what lies inside a solid, move the rest of the wall band (header)
-                band = wb * 0.5_wp * dx
+                ! drop what lies inside a solid (and the dropped rows of paired planes), shift
+                ! between paired planes, move the rest of the wall band (header)
                 allocate(keep(n_new), moved(n_new))
-                moved = .false.
                 do k = 1, n_new
-                    y = x_new(:, k) + org
-                    ! the nearest solid (d1, s1) and the distance to the next one (d2)
-                    d1 = huge(1.0_wp)
-                    d2 = huge(1.0_wp)
-                    s1 = 0
-                    do s = 1, ns
-                        d = solid_distance(solids%list(s), y)
-                        if (d < d1) then
-                            d2 = d1
-                            d1 = d
-                            s1 = s
-                        else if (d < d2) then
-                            d2 = d
-                        end if
-                    end do
-                    ! without a band (same-level remeshing) the row on the surface is dropped
-                    if (band > 0.25_wp * dx) then
-                        keep(k) = d1 > -0.25_wp * dx
-                    else
-                        keep(k) = d1 > 0.25_wp * dx
-                    end if
-                    if (.not. keep(k)) cycle
-                    ! band, up to half-way to the next solid (map continuous where they meet)
-                    b = min(band, 0.5_wp * (max(d1, 0.0_wp) + d2))
-                    if (d1 < b .and. b > 0.25_wp * dx) then
-                        x_new(:, k) = x_new(:, k) + (wall_map(max(d1, 0.0_wp), dx, b) - d1) &
-                            * solid_normal(solids%list(s1), y)
-                        x_new(dim + 1:, k) = 0.0_wp
-                        moved(k) = .true.
-                    end if
+                    call wall_rule(x_new(:, k), keep(k), moved(k))
                 end do
                 n_new = count(keep)
                 moved = pack(moved, keep)
@@ -277,6 +304,100 @@ contains
 
     contains
 
+        !> The wall rule (header, rules 2 and 3) for the point z (relative to the origin): keep
+        !> it or not, and where it goes; moved_z when it moves other than by the uniform shift
+        !> between paired planes.
+        subroutine wall_rule(z, keep_z, moved_z)
+            real(wp), intent(inout) :: z(3)
+            logical, intent(out) :: keep_z, moved_z
+            real(wp) :: dist(ns), yz(3), d_1, d_2, b_1, sh(3), fz, ph
+            integer :: sz, s_1, tz
+            moved_z = .false.
+            yz = z + org
+            do sz = 1, ns
+                dist(sz) = solid_distance(solids%list(sz), yz)
+            end do
+            ! the nearest solid (d_1, s_1; not a paired plane) and the next one (d_2)
+            d_1 = huge(1.0_wp)
+            s_1 = 0
+            do sz = 1, ns
+                if (pairs_on .and. partner(sz) > 0) cycle
+                if (dist(sz) < d_1) then
+                    d_1 = dist(sz)
+                    s_1 = sz
+                end if
+            end do
+            d_2 = huge(1.0_wp)
+            do sz = 1, ns
+                if (sz /= s_1) d_2 = min(d_2, dist(sz))
+            end do
+            ! without a band (same-level remeshing) the row on the surface is dropped
+            if (band > 0.25_wp * dx) then
+                keep_z = d_1 > -0.25_wp * dx
+            else
+                keep_z = d_1 > 0.25_wp * dx
+            end if
+            ! each pair from its lower-numbered plane, whose row on the surface goes
+            sh = 0.0_wp
+            if (pairs_on) then
+                do sz = 1, ns
+                    tz = partner(sz)
+                    if (tz < sz) cycle
+                    if (dist(sz) < SURFACE_TOL * dx .or. dist(tz) <= -0.25_wp * dx) &
+                        keep_z = .false.
+                    fz = pair_map(dist(sz), dist(sz) + dist(tz), dx)
+                    if (abs(fz - dist(sz) + 0.25_wp * dx) > SURFACE_TOL * dx) moved_z = .true.
+                    sh = sh + (fz - dist(sz)) * solids%list(sz)%normal
+                end do
+            end if
+            if (.not. keep_z) return
+            ! the shift fades out towards the other solids (a body in a channel keeps its own
+            ! band map)
+            if (any(sh /= 0.0_wp)) then
+                ph = 1.0_wp
+                if (s_1 > 0) ph = min(1.0_wp, max(d_1, 0.0_wp) / band)
+                if (ph < 1.0_wp) moved_z = .true.
+                z = z + ph * sh
+                z(dim + 1:) = 0.0_wp
+            end if
+            if (s_1 == 0) return
+            ! band, up to half-way to the next solid (map continuous where they meet)
+            b_1 = min(band, 0.5_wp * (max(d_1, 0.0_wp) + d_2))
+            if (d_1 < b_1 .and. b_1 > 0.25_wp * dx) then
+                z = z + (wall_map(max(d_1, 0.0_wp), dx, b_1) - d_1) &
+                    * solid_normal(solids%list(s_1), yz)
+                z(dim + 1:) = 0.0_wp
+                moved_z = .true.
+            end if
+        end subroutine wall_rule
+
+        !> Append the mirror image y (absolute) of particle a with mirror code c to xa / ida
+        !> (grown when full).
+        subroutine add_mirror(y_abs, c, a_orig)
+            real(wp), intent(in) :: y_abs(3)
+            integer, intent(in) :: c, a_orig
+            real(wp), allocatable :: xa_more(:, :)
+            integer(i8), allocatable :: ida_more(:)
+            if (na == size(ida)) then
+                allocate(xa_more(3, 2 * na), ida_more(2 * na))
+                xa_more(:, 1:na) = xa(:, 1:na)
+                ida_more(1:na) = ida(1:na)
+                call move_alloc(xa_more, xa)
+                call move_alloc(ida_more, ida)
+            end if
+            na = na + 1
+            xa(:, na) = y_abs - org
+            xa(dim + 1:, na) = 0.0_wp
+            ida(na) = int(c, i8) * span + ids(a_orig)
+        end subroutine add_mirror
+
+        !> Whether planes s and t (paired ones) meet at a right angle (a corner of a box).
+        pure logical function at_right_angles(s_a, s_b)
+            integer, intent(in) :: s_a, s_b
+            at_right_angles = abs(dot_product(solids%list(s_a)%normal, &
+                solids%list(s_b)%normal)) < 1.0e-6_wp
+        end function at_right_angles
+
         !> The points in key order: the caller's fresh ids follow the keys (sph_global_ids),
         !> so its sorts of the keys and then of the ids find them in order (one pass each
         !> instead of a full sort of 4 N keys, twice).
@@ -290,7 +411,7 @@ contains
             key = key(:, order)
         end subroutine in_key_order
 
-        !> Gap filling (header, rule 4): midpoints (then, if needed, quarter points) of the
+        !> Gap filling (header, rule 5): midpoints (then, if needed, quarter points) of the
         !> old pairs EDGE_FACTOR dx to FILL_PAIR_MAX dx apart, in key order, each kept when no
         !> point lies within FILL_GAP dx/2; down to want by the hash of their keys.
         subroutine fill_gaps(want)
@@ -300,7 +421,7 @@ contains
             integer, allocatable :: oo(:), orig(:), order(:), idx(:), ord(:)
             logical, allocatable :: take(:), best(:), allowed(:)
             type(neighbour_list_t) :: nl
-            logical :: periodic
+            logical :: periodic, taken, mv
             real(wp) :: bx(3), r2, r_fill, dd(3)
             integer :: no, nc, i, j, t, ntot, n_best, s, f
             periodic = present(box)
@@ -341,6 +462,17 @@ contains
                         if (solid_distance(solids%list(s), yc(:, i) + org) < 0.25_wp * dx) &
                             take(i) = .false.
                     end do
+                end do
+            end if
+            ! and where the wall rule puts the constructed points (the shift between paired
+            ! planes: a candidate left where it was would sit between the shifted points)
+            if (ns > 0) then
+                do i = 1, nc
+                    if (.not. take(i)) cycle
+                    call wall_rule(yc(:, i), taken, mv)
+                    take(i) = taken
+                    if (periodic) yc(1:dim, i) = yc(1:dim, i) &
+                        - bx(1:dim) * floor(yc(1:dim, i) / bx(1:dim))
                 end do
             end if
             yc = yc(:, pack([(i, i = 1, nc)], take))
@@ -390,7 +522,7 @@ contains
 
         end subroutine fill_gaps
 
-        !> Thinning (header, rule 3): a point is dropped when a point kept before it lies
+        !> Thinning (header, rule 4): a point is dropped when a point kept before it lies
         !> within MIN_GAP dx/2. Old positions that were not moved come first, among themselves
         !> in key order (they are closer than that only where the old set has clumped: two
         !> particles 0.016 dx apart in Morris' cylinder at L/50, 6000 s); the constructed
@@ -506,6 +638,22 @@ contains
             g = 0.25_wp * dx + d * (band - 0.25_wp * dx) / band
         end if
     end function wall_map
+
+    !> Between two paired planes (header, rule 2): the new distance from the plane whose
+    !> surface row is dropped, for a point at distance xi from it and width - xi from the
+    !> other: xi - dx/4 for dx/2 <= xi <= width (the lattice's rows: a uniform shift), and,
+    !> continuous and increasing, dx/8 + xi/4 closer to that plane (from the flow's disorder
+    !> only) and width - dx/4 + (xi - width)/2 behind the other (down to dx/8 from it).
+    pure real(wp) function pair_map(xi, width, dx) result(f)
+        real(wp), intent(in) :: xi, width, dx
+        if (xi < 0.5_wp * dx) then
+            f = 0.125_wp * dx + 0.25_wp * xi
+        else if (xi <= width) then
+            f = xi - 0.25_wp * dx
+        else
+            f = width - 0.25_wp * dx + 0.5_wp * (xi - width)
+        end if
+    end function pair_map
 
     subroutine construct_positions(dim, n, x, ids, dx, n_new, x_new, key, stat, errmsg, box, &
             n_irregular)
