@@ -70,9 +70,13 @@
 !>     between the walls (a developed channel flow) refines to the lattice, 2^dim N exactly,
 !>     first rows half a new spacing off each wall (pair_map: the few points that the flow's
 !>     disorder puts closer than dx/2 to the dropped plane, or behind the other one, are
-!>     squeezed so that none ends closer than dx/8, continuously and monotonically). The
-!>     shift fades out over the band towards any other solid (a body in a channel), whose
-!>     own band map (3) applies. In a closed box every pair drops one surface row: the
+!>     squeezed so that none ends closer than dx/8, continuously and monotonically). Within
+!>     the band of any other solid (a body in a channel) the shift's component along that
+!>     solid's normal fades out linearly towards its surface, where its own band map (3)
+!>     puts the surface row; that band ends half-way to the next solid, so the walls' rows
+!>     get the whole shift. (Fading the whole shift over 20 new spacings, a first version,
+!>     left the first rows 0.35 and 0.65 new spacings off the walls of a channel whose body
+!>     lay 7 old spacings from them.) In a closed box every pair drops one surface row: the
 !>     lattice again, the corners' centres from the corner mirrors. Before, the band map (3)
 !>     applied to the walls too: both surface rows stayed, 2 M + 1 rows compressed by
 !>     (M - 1/2) / M (200 -> 820, not 800, for the L/20 Poiseuille channel, the refined
@@ -310,7 +314,7 @@ contains
         subroutine wall_rule(z, keep_z, moved_z)
             real(wp), intent(inout) :: z(3)
             logical, intent(out) :: keep_z, moved_z
-            real(wp) :: dist(ns), yz(3), d_1, d_2, b_1, sh(3), fz, ph
+            real(wp) :: dist(ns), yz(3), d_1, d_2, b_1, sh(3), fz, ph, nb(3)
             integer :: sz, s_1, tz
             moved_z = .false.
             yz = z + org
@@ -351,18 +355,22 @@ contains
                 end do
             end if
             if (.not. keep_z) return
-            ! the shift fades out towards the other solids (a body in a channel keeps its own
-            ! band map)
+            ! band, up to half-way to the next solid (map continuous where they meet)
+            b_1 = huge(1.0_wp)
+            if (s_1 > 0) b_1 = min(band, 0.5_wp * (max(d_1, 0.0_wp) + d_2))
+            ! within a body's band the shift's part along the body's normal fades out towards
+            ! its surface, where the band map below puts the surface row (a body in a channel)
             if (any(sh /= 0.0_wp)) then
-                ph = 1.0_wp
-                if (s_1 > 0) ph = min(1.0_wp, max(d_1, 0.0_wp) / band)
-                if (ph < 1.0_wp) moved_z = .true.
-                z = z + ph * sh
+                if (s_1 > 0 .and. d_1 < b_1) then
+                    nb = solid_normal(solids%list(s_1), yz)
+                    ph = max(d_1, 0.0_wp) / b_1
+                    sh = sh - (1.0_wp - ph) * dot_product(sh, nb) * nb
+                    moved_z = .true.
+                end if
+                z = z + sh
                 z(dim + 1:) = 0.0_wp
             end if
             if (s_1 == 0) return
-            ! band, up to half-way to the next solid (map continuous where they meet)
-            b_1 = min(band, 0.5_wp * (max(d_1, 0.0_wp) + d_2))
             if (d_1 < b_1 .and. b_1 > 0.25_wp * dx) then
                 z = z + (wall_map(max(d_1, 0.0_wp), dx, b_1) - d_1) &
                     * solid_normal(solids%list(s_1), yz)
