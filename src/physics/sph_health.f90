@@ -26,6 +26,8 @@ module sph_health
     real(wp), parameter :: IN_SOLID_SLACK = 0.2_wp
     !> the screen of check_particles tests depths against the slack less this fraction of it
     real(wp), parameter :: SCREEN_HAIR = 1.0e-9_wp
+    !> particles a block of the screen (their values stay in the cache between its loops)
+    integer, parameter :: SCREEN_BLOCK = 2048
 
     !> The first problem found on this rank (code HEALTH_OK when none).
     type :: health_problem_t
@@ -96,33 +98,38 @@ contains
         logical function all_clear(n)
             integer, intent(in) :: n
             real(wp) :: band, s, thr
-            integer :: j, kk, n_bad
+            integer :: j, kk, n_bad, j0, j1
             ! no branches (and no .and., which gfortran evaluates by branching), so that the
             ! loops vectorise; the comparisons only once every value is known to be finite (a
-            ! NaN in an ordered comparison raises the invalid flag, which Debug builds trap)
+            ! NaN in an ordered comparison raises the invalid flag, which Debug builds trap).
+            ! Block by block, so that the later loops find a block's values in the cache (one
+            ! pass over memory instead of 2 + n_solids: 4.3 -> ns a particle-step at 10^6)
             n_bad = 0
-            do j = 1, n
-                s = EIGHTH * p%x(1, j) + EIGHTH * p%x(2, j) + EIGHTH * p%x(3, j) + &
-                    EIGHTH * p%v(1, j) + EIGHTH * p%v(2, j) + EIGHTH * p%v(3, j) + &
-                    EIGHTH * p%rho(j)
-                n_bad = n_bad + merge(0, 1, ieee_is_finite(s))
-            end do
-            if (n_bad > 0) then
-                all_clear = .false.
-                return
-            end if
             band = limits%density_band * rho0
-            do j = 1, n
-                n_bad = n_bad + merge(1, 0, p%kind(j) == KIND_FLUID) * &
-                    merge(1, 0, abs(p%rho(j) - rho0) > band)
-            end do
             thr = -(1.0_wp - SCREEN_HAIR) * IN_SOLID_SLACK
-            do kk = 1, n_solids
-                do j = 1, n
-                    n_bad = n_bad + merge(1, 0, p%kind(j) == KIND_FLUID) * merge(1, 0, &
-                        normal(1, kk) * (p%x(1, j) - point(1, kk)) + normal(2, kk) * &
-                        (p%x(2, j) - point(2, kk)) + normal(3, kk) * (p%x(3, j) - point(3, kk)) &
-                        < thr * p%h(j))
+            do j0 = 1, n, SCREEN_BLOCK
+                j1 = min(n, j0 + SCREEN_BLOCK - 1)
+                do j = j0, j1
+                    s = EIGHTH * p%x(1, j) + EIGHTH * p%x(2, j) + EIGHTH * p%x(3, j) + &
+                        EIGHTH * p%v(1, j) + EIGHTH * p%v(2, j) + EIGHTH * p%v(3, j) + &
+                        EIGHTH * p%rho(j)
+                    n_bad = n_bad + merge(0, 1, ieee_is_finite(s))
+                end do
+                if (n_bad > 0) then
+                    all_clear = .false.
+                    return
+                end if
+                do j = j0, j1
+                    n_bad = n_bad + merge(1, 0, p%kind(j) == KIND_FLUID) * &
+                        merge(1, 0, abs(p%rho(j) - rho0) > band)
+                end do
+                do kk = 1, n_solids
+                    do j = j0, j1
+                        n_bad = n_bad + merge(1, 0, p%kind(j) == KIND_FLUID) * merge(1, 0, &
+                            normal(1, kk) * (p%x(1, j) - point(1, kk)) + normal(2, kk) * &
+                            (p%x(2, j) - point(2, kk)) + normal(3, kk) * &
+                            (p%x(3, j) - point(3, kk)) < thr * p%h(j))
+                    end do
                 end do
             end do
             all_clear = n_bad == 0
