@@ -67,12 +67,16 @@ contains
     !> while a list rebuilt at a checkpoint orders its rows as the reused one (finer cells
     !> let more particles change cell between rebuilds: jobs_chain_under_stand_in_scheduler
     !> then differed in the last bit).
+    !> cell_size (single level only) overrides reach: cells of that size, as many scanned as
+    !> the radius needs. A radius far below the spacing (remeshing's thinning: 0.2 old
+    !> spacings) would otherwise give cells holding a tenth of a particle, most of the time
+    !> going into their counts (10^7 cells for a refinement of 10^5 particles).
     !> Resolution levels (multi-resolution runs): with level (of every particle) and
     !> level_radius(0:), a particle's neighbours are the particles of its own level within
     !> that level's radius; each level is binned in its own grid with its own cell size, so a
     !> fine particle scans fine cells only.
     subroutine build_neighbour_list(x, n_total, n_query, dim, radius, nl, level, level_radius, &
-            reach)
+            reach, cell_size)
         real(wp), intent(in) :: x(:, :)
         integer, intent(in) :: n_total, n_query, dim
         real(wp), intent(in) :: radius
@@ -80,8 +84,9 @@ contains
         integer, intent(in), optional :: level(:)
         real(wp), intent(in), optional :: level_radius(0:)
         integer, intent(in), optional :: reach
+        real(wp), intent(in), optional :: cell_size
         integer :: i, j, k, lo(3), hi(3), b, cz, first, last, pairs, lv, n_levels, cells
-        real(wp) :: xi(3), d1, d2, d3
+        real(wp) :: xi(3), d1, d2, d3, size_of_cell
         real(wp), allocatable :: r2max(:)
         integer, allocatable :: members(:)
         type(point_block_t), allocatable :: in_cells(:)   !< per level
@@ -89,6 +94,12 @@ contains
         call reserve_rows(nl, n_query, 40)
         cells = 1
         if (present(reach)) cells = reach
+        size_of_cell = radius / cells
+        if (present(cell_size) .and. .not. present(level)) then
+            ! cells of that size, as many scanned as the radius needs
+            size_of_cell = cell_size
+            cells = max(1, ceiling(radius / cell_size))
+        end if
 
         n_levels = 1
         if (present(level)) n_levels = size(level_radius)
@@ -106,7 +117,7 @@ contains
                 r2max(lv) = level_radius(lv)**2
             end do
         else
-            call bin_particles(x, n_total, dim, radius / cells, nl%grids(0))
+            call bin_particles(x, n_total, dim, size_of_cell, nl%grids(0))
             call copy_in_cell_order(0, n_total)
             r2max(0) = radius * radius
         end if

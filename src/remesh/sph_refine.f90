@@ -498,7 +498,8 @@ contains
             xall(:, n_new + 1:) = yc(:, 1:nc)
             call with_periodic_images(dim, n_new + nc, xall, periodic, bx, 0.5_wp * dx, xi, &
                 orig, ntot)
-            call build_neighbour_list(xi, ntot, n_new + nc, dim, 0.5_wp * dx, nl, reach=2)
+            call build_neighbour_list(xi, ntot, n_new + nc, dim, 0.5_wp * dx, nl, &
+                cell_size=0.5_wp * dx)
             ! the midpoints alone when they reach want (they keep more of the flow's own
             ! spacing), with the quarter points otherwise
             allocate(allowed(nc))
@@ -556,7 +557,9 @@ contains
             bx = 0.0_wp
             if (periodic) bx = box
             call with_periodic_images(dim, n_new, x_new, periodic, bx, rmin, xi, orig, ntot)
-            call build_neighbour_list(xi, ntot, n_new, dim, rmin, nl, reach=2)
+            ! cells of a new spacing (about a point each): cells of the radius would hold a
+            ! tenth of one, and counting them took most of the thinning's time
+            call build_neighbour_list(xi, ntot, n_new, dim, rmin, nl, cell_size=0.5_wp * dx)
             state = undecided
             do while (any(state == undecided))
                 do i = 1, n_new
