@@ -322,9 +322,16 @@ contains
             real(wp), intent(in) :: gap
             logical, intent(in), optional :: curved_only
             logical, allocatable :: clear(:)
+            logical :: planes
             integer :: a
             if (.not. present(solids)) return
             if (.not. allocated(solids%list)) return
+            ! no solid that applies (a periodic box; only planes with curved_only): no pass and
+            ! no copy of the set
+            planes = .true.
+            if (present(curved_only)) planes = .not. curved_only
+            if (.not. planes .and. all(solids%list(:)%shape == SOLID_PLANE)) return
+            if (size(solids%list) == 0) return
             allocate(clear(n_new))
             do a = 1, n_new
                 clear(a) = clear_of_solids(xn(:, a), gap, curved_only)
