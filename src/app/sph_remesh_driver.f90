@@ -122,6 +122,11 @@ module sph_remesh_driver
         integer :: n_irregular = 0                   !< refinement: cells without a centre
         integer :: n_mass_fallback = 0, n_velocity_fallback = 0   !< transfer fallbacks
         integer :: relax_passes = 0                  !< relaxation passes made (coarsen, same)
+        !> summation density (set by the caller, sph_stepper_remesh): passes of the fluid
+        !> masses' adjustment, and the largest |kernel sum / handed-on density - 1| of a fluid
+        !> particle before and after it (mass_passes < 0: no adjustment)
+        integer :: mass_passes = -1
+        real(wp) :: mismatch_before = 0.0_wp, mismatch_after = 0.0_wp
     end type remesh_report_t
 
 contains

@@ -13,7 +13,16 @@ submodule (sph_stepper) sph_stepper_remesh
     use sph_checkpoint, only: write_checkpoint, stored_spacing
     use sph_remesh_driver, only: remesh_report_t, remesh_fluid, remesh_mode_code, &
         remesh_spacing_factor, REMESH_NONE, REMESH_SAME
+    use sph_rates, only: compute_summation_density
+    use sph_particles, only: HALO_GHOST
+    use sph_domain_input, only: domain_input_t, misfit_axis
     implicit none
+
+    !> summation density (summation_masses): at most this many passes of the masses'
+    !> adjustment, which stops once no fluid particle's kernel sum is further than
+    !> MASS_TOLERANCE from its handed-on density
+    integer, parameter :: MASS_PASSES = 8
+    real(wp), parameter :: MASS_TOLERANCE = 1.0e-3_wp
 
 contains
 
@@ -47,6 +56,14 @@ contains
             end if
         end if
         if (.not. due) return
+        ! a spacing whose lattice cannot fill the box (coarsening again and again, or a box of
+        ! an odd number of spacings): the run goes on at its spacing
+        if (len(spacing_problem(sim%cfg%domain, mode)) > 0) then
+            ! (the same on every rank: rank 0 says it)
+            if (env%rank == 0) call log_warn_counted('remesh_spacing', &
+                'remesh: not remeshed: ' // spacing_problem(sim%cfg%domain, mode))
+            return
+        end if
         call timers_enter(sim%timers, TIMER_OTHER, previous)
         call simulation_remesh(sim, env, mode)
         call timers_leave(sim%timers, previous)
@@ -56,7 +73,8 @@ contains
         disorder = disorder_from_sums(global_sum(env, nearest_distance_sums(sim%p, sim%nl)))
         write(text, '(a, f8.5)') 'remesh: disorder after the remesh ', disorder
         call log_info(text)
-        if (disorder > sim%cfg%remesh%disorder_threshold) call log_warn_counted( &
+        if (disorder > sim%cfg%remesh%disorder_threshold .and. env%rank == 0) &
+            call log_warn_counted( &
             'disorder_threshold', '&remesh disorder_threshold is below the disorder of a ' // &
             'freshly remeshed set: every check will remesh; raise it above the value logged ' // &
             "after the remesh ('remesh: disorder after the remesh')")
@@ -134,12 +152,95 @@ contains
         call id_order(sim%p%id, sim%p%n_owned, order)
         call particles_gather(sim%p, order)
         call simulation_prepare_neighbours(sim, env)
+        if (sim%phys%density_method == DENSITY_SUMMATION) call summation_masses(sim, env, report)
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
         sim%rates_stale = .true.
         sim%remesh_stages = [report%seconds_positions, report%seconds_transfer, &
             global_max(env, MPI_Wtime() - t_rebuild)]
         call log_remesh(report, sim%remesh_stages, mode, dx_old, dx_new, sim%time, sim%step)
     end subroutine remesh_state
+
+    !> A run whose density is the kernel sum of the masses (&numerics density_method =
+    !> 'summation') discards the handed-on densities at its next step: the new particles'
+    !> masses follow their volumes, not their arrangement, and on a disordered set their
+    !> kernel sums are far from the flow's density (the lid-driven cavity at L/50, 0.01 s,
+    !> refined: up to 66 % off, the continued run stopped at its first step with a density of
+    !> 1500 kg/m^3). So the fluid masses are adjusted until the kernel sums give the handed-on
+    !> densities: m_i <- m_i rho_i / sum_j m_j W_ij (walls keep theirs), at most MASS_PASSES
+    !> passes; then scaled back to the total mass before the remesh, the momentum restored by
+    !> one uniform velocity correction (as sph_remesh_driver does), and the densities set to
+    !> the kernel sums. The report takes the new totals and the largest mismatch before and
+    !> after. Measured on that cavity: largest mismatch 0.66 -> 0.10, root mean square
+    !> 0.093 -> 0.012 in 8 passes; the continued run's densities stay within the range of the
+    !> run made at L/100 from the start (doc/validation.md).
+    subroutine summation_masses(sim, env, report)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        type(remesh_report_t), intent(inout) :: report
+        real(wp), allocatable :: handed(:)
+        logical, allocatable :: fluid(:)
+        integer :: n, pass, i
+        real(wp) :: worst, mass, momentum(3), dv(3)
+        n = sim%p%n_owned
+        fluid = sim%p%kind(1:n) == KIND_FLUID
+        handed = sim%p%rho(1:n)
+        report%mass_passes = 0
+        do pass = 0, MASS_PASSES
+            call compute_summation_density(sim%phys, sim%p, sim%nl)
+            worst = global_max(env, maxval(abs(sim%p%rho(1:n) / handed - 1.0_wp), mask=fluid))
+            if (pass == 0) report%mismatch_before = worst
+            report%mismatch_after = worst
+            if (pass == MASS_PASSES .or. worst < MASS_TOLERANCE) exit
+            where (fluid) sim%p%m(1:n) = sim%p%m(1:n) * (handed / sim%p%rho(1:n))
+            call refresh_ghosts(sim, env, HALO_GHOST)
+            call build_mirrors(sim%phys, sim%solids, sim%p)
+            report%mass_passes = pass + 1
+        end do
+        ! the totals before the remesh
+        mass = global_sum(env, sum(sim%p%m(1:n), mask=fluid))
+        where (fluid) sim%p%m(1:n) = sim%p%m(1:n) * (report%mass_before / mass)
+        momentum = 0.0_wp
+        do i = 1, n
+            if (fluid(i)) momentum = momentum + sim%p%m(i) * sim%p%v(:, i)
+        end do
+        momentum = global_sum(env, momentum)
+        dv = 0.0_wp
+        dv(1:sim%p%dim) = (report%momentum_before(1:sim%p%dim) - momentum(1:sim%p%dim)) / &
+            report%mass_before
+        momentum = 0.0_wp
+        do i = 1, n
+            if (.not. fluid(i)) cycle
+            sim%p%v(:, i) = sim%p%v(:, i) + dv
+            momentum = momentum + sim%p%m(i) * sim%p%v(:, i)
+        end do
+        report%mass_after = global_sum(env, sum(sim%p%m(1:n), mask=fluid))
+        report%momentum_after = global_sum(env, momentum)
+        call refresh_ghosts(sim, env, HALO_GHOST)
+        call build_mirrors(sim%phys, sim%solids, sim%p)
+        call compute_summation_density(sim%phys, sim%p, sim%nl)
+        call refresh_ghosts(sim, env, HALO_DENSITY)
+        call build_mirrors(sim%phys, sim%solids, sim%p)
+    end subroutine summation_masses
+
+    !> Why the lattice of the spacing a remesh of `mode` makes cannot fill the box ('' when it
+    !> can): the input check's rule for dx (sph_domain_input).
+    function spacing_problem(dom, mode) result(problem)
+        type(domain_input_t), intent(in) :: dom
+        integer, intent(in) :: mode
+        character(len=:), allocatable :: problem
+        character(len=160) :: text
+        real(wp) :: dx_new
+        integer :: axis
+        problem = ''
+        dx_new = dom%dx * remesh_spacing_factor(mode)
+        axis = misfit_axis(dom, dx_new)
+        if (axis == 0) return
+        write(text, '(a,es9.3,a,i0,a,es9.3,a,f0.3,a)') 'the new spacing ', dx_new, &
+            ' m does not divide the box length on axis ', axis, ' (', &
+            dom%box_hi(axis) - dom%box_lo(axis), ' m, ', &
+            (dom%box_hi(axis) - dom%box_lo(axis)) / dx_new, ' spacings)'
+        problem = trim(text)
+    end function spacing_problem
 
     !> The log lines of one remesh (rank 0 prints); stages as simulation_t's remesh_stages.
     subroutine log_remesh(report, stages, mode, dx_old, dx_new, time, step)
@@ -175,6 +276,11 @@ contains
         write(line, '(a,i0,a,i0,a,i0,a,i0)') '  irregular cells ', report%n_irregular, &
             ', transfer fallbacks: mass ', report%n_mass_fallback, ', velocity ', &
             report%n_velocity_fallback, '; relaxation passes ', report%relax_passes
+        call log_info(trim(line))
+        if (report%mass_passes < 0) return
+        write(line, '(a,i0,a,es9.2,a,es9.2,a)') '  summation density: fluid masses adjusted in ', &
+            report%mass_passes, ' passes, largest |kernel sum / handed-on density - 1| ', &
+            report%mismatch_before, ' -> ', report%mismatch_after
         call log_info(trim(line))
     end subroutine log_remesh
 
@@ -213,6 +319,8 @@ contains
         ! a file remeshed before carries its spacing; its stored input has the original dx
         dx_file = stored_spacing(env, in_path)
         if (dx_file > 0.0_wp) cfg%domain%dx = dx_file
+        if (len(spacing_problem(cfg%domain, mode)) > 0) call fatal_collective('remesh', &
+            spacing_problem(cfg%domain, mode) // '; nothing written')
         call setup_common(sim, env, cfg)
         share = n_rows / env%nranks
         extra = mod(n_rows, int(env%nranks, i8))

@@ -9,7 +9,7 @@ module sph_domain_input
     private
     public :: domain_input_t, read_domain_input, check_analytic_channel
     public :: channel_t, find_analytic_channel
-    public :: n_faces, face_names
+    public :: n_faces, face_names, misfit_axis
 
     integer, parameter :: n_faces = 6, name_len = 32, path_len = 512
     !> Faces in input order: boundary(f), wall_velocity(:, f).
@@ -69,7 +69,7 @@ contains
         type(nml_group_t), intent(inout) :: grp
         type(domain_input_t), intent(out) :: dom
         integer :: axis
-        real(wp) :: length, cells
+        real(wp) :: length
         character(len=1) :: axis_text
 
         call grp%get_int('dimension', dom%dimension, 2, min=2, max=3, doc='2 or 3')
@@ -101,14 +101,38 @@ contains
                     trim(face_names(2*axis)) // ')', &
                     'both faces of an axis are periodic or neither is')
             if (dom%dx > 0.0_wp) then
-                cells = length / dom%dx
-                if (abs(cells - nint(cells)) > 1.0e-6_wp * cells .or. nint(cells) < 1) &
+                if (.not. spacing_fits_axis(dom, dom%dx, axis)) &
                     call grp%error('dx', 'box length on axis ' // axis_text // &
                         ' must be a whole multiple of dx (the lattice must close ' // &
                         'periodically and sit symmetrically between walls)')
             end if
         end do
     end subroutine read_domain_input
+
+    !> Whether the box length on `axis` is a whole multiple of the spacing dx: a lattice of
+    !> that spacing must close periodically and sit symmetrically between walls (the set-up's
+    !> lattice, a remesh's new spacing).
+    pure logical function spacing_fits_axis(dom, dx, axis) result(fits)
+        type(domain_input_t), intent(in) :: dom
+        real(wp), intent(in) :: dx
+        integer, intent(in) :: axis
+        real(wp) :: cells
+        cells = (dom%box_hi(axis) - dom%box_lo(axis)) / dx
+        fits = abs(cells - nint(cells)) <= 1.0e-6_wp * cells .and. nint(cells) >= 1
+    end function spacing_fits_axis
+
+    !> The first axis in use whose box length is not a whole multiple of dx; 0 when none.
+    pure integer function misfit_axis(dom, dx) result(axis)
+        type(domain_input_t), intent(in) :: dom
+        real(wp), intent(in) :: dx
+        integer :: a
+        axis = 0
+        do a = 1, min(max(dom%dimension, 2), 3)
+            if (spacing_fits_axis(dom, dx, a)) cycle
+            axis = a
+            return
+        end do
+    end function misfit_axis
 
     !> The analytic reference (&run analytic) only makes sense for the channel it describes
     !> (find_analytic_channel); errors are reported against &run analytic in run_grp.

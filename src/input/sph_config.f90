@@ -10,7 +10,7 @@ module sph_config
     use sph_namelist, only: nml_file_t, nml_group_t, nml_key_t, nml_parse
     use sph_run_input, only: run_input_t, output_input_t, read_run_input, read_output_input
     use sph_domain_input, only: domain_input_t, read_domain_input, check_analytic_channel, &
-        n_faces, face_names
+        misfit_axis, n_faces, face_names
     use sph_physics_input, only: fluid_input_t, numerics_input_t, read_fluid_input, &
         read_numerics_input, check_moving_corners
     use sph_parallel_input, only: parallel_input_t, read_parallel_input
@@ -171,6 +171,14 @@ contains
         if (cfg%numerics%transport_velocity .and. size(regions) > 0) call grp(5)%error( &
             'transport_velocity', '.true. works with one resolution level only (no ' // &
             '&region groups)')
+        ! the first coarsening's lattice must fill the box (a later one that cannot is skipped
+        ! with a warning)
+        if (sum(grp%n_errors) == 0 .and. trim(cfg%remesh%mode) == 'coarsen') then
+            if (misfit_axis(cfg%domain, 2.0_wp * cfg%domain%dx) /= 0) call grp(9)%error( &
+                'mode', "'coarsen' needs every box length to be a whole multiple of 2 dx " // &
+                '(the coarse lattice must close periodically and sit symmetrically ' // &
+                'between walls)')
+        end if
         if (sum(grp%n_errors) == 0 .and. sum(bodies%n_errors) == 0 .and. &
             sum(regions%n_errors) == 0) call check_refinement(grp(10), regions, grp(3), &
             grp(5), grp(9), cfg%refinement, cfg%regions, cfg%domain, cfg%numerics, cfg%remesh)
