@@ -4,7 +4,7 @@
 !> Split from sph_stepper so that each file holds one concern; the interfaces and their
 !> documentation are in sph_stepper.
 submodule (sph_stepper) sph_stepper_remesh
-    use sph_logger, only: log_warn_counted
+    use sph_logger, only: log_warn_counted, log_warn
     use sph_particles, only: particles_init, particles_free, particles_append
     use sph_physics, only: physics_from_config
     use sph_walls, only: solids_from_config
@@ -15,7 +15,7 @@ submodule (sph_stepper) sph_stepper_remesh
         remesh_spacing_factor, REMESH_NONE, REMESH_SAME
     use sph_rates, only: compute_summation_density
     use sph_particles, only: HALO_GHOST
-    use sph_domain_input, only: domain_input_t, misfit_axis
+    use sph_domain_input, only: misfit_axis
     implicit none
 
     !> summation density (summation_masses): at most this many passes of the masses'
@@ -31,6 +31,7 @@ contains
         integer :: mode, previous
         real(wp) :: disorder
         character(len=120) :: text
+        character(len=:), allocatable :: problem
         mode = remesh_mode_code(sim%cfg%remesh%mode)
         if (mode == REMESH_NONE) return
         due = .false.
@@ -58,10 +59,11 @@ contains
         if (.not. due) return
         ! a spacing whose lattice cannot fill the box (coarsening again and again, or a box of
         ! an odd number of spacings): the run goes on at its spacing
-        if (len(spacing_problem(sim%cfg%domain, mode)) > 0) then
+        problem = spacing_problem(sim%cfg, mode)
+        if (len(problem) > 0) then
             ! (the same on every rank: rank 0 says it)
             if (env%rank == 0) call log_warn_counted('remesh_spacing', &
-                'remesh: not remeshed: ' // spacing_problem(sim%cfg%domain, mode))
+                'remesh: not remeshed: ' // problem)
             return
         end if
         call timers_enter(sim%timers, TIMER_OTHER, previous)
@@ -223,24 +225,47 @@ contains
         call build_mirrors(sim%phys, sim%solids, sim%p)
     end subroutine summation_masses
 
-    !> Why the lattice of the spacing a remesh of `mode` makes cannot fill the box ('' when it
-    !> can): the input check's rule for dx (sph_domain_input).
-    function spacing_problem(dom, mode) result(problem)
-        type(domain_input_t), intent(in) :: dom
+    !> Why a run cannot go on at the spacing a remesh of `mode` makes ('' when it can): its
+    !> lattice must fill the box (the input check's rule for dx, sph_domain_input) and a
+    !> periodic side must hold twice the new kernel support (setup_common's rule).
+    function spacing_problem(cfg, mode) result(problem)
+        type(config_t), intent(in) :: cfg
         integer, intent(in) :: mode
         character(len=:), allocatable :: problem
-        character(len=160) :: text
-        real(wp) :: dx_new
-        integer :: axis
+        character(len=200) :: text
+        character(len=:), allocatable :: errmsg
+        type(config_t) :: after
+        type(physics_t) :: phys
+        real(wp) :: dx_new, side
+        integer :: axis, stat
         problem = ''
-        dx_new = dom%dx * remesh_spacing_factor(mode)
-        axis = misfit_axis(dom, dx_new)
-        if (axis == 0) return
-        write(text, '(a,es9.3,a,i0,a,es9.3,a,f0.3,a)') 'the new spacing ', dx_new, &
-            ' m does not divide the box length on axis ', axis, ' (', &
-            dom%box_hi(axis) - dom%box_lo(axis), ' m, ', &
-            (dom%box_hi(axis) - dom%box_lo(axis)) / dx_new, ' spacings)'
-        problem = trim(text)
+        dx_new = cfg%domain%dx * remesh_spacing_factor(mode)
+        axis = misfit_axis(cfg%domain, dx_new)
+        if (axis /= 0) then
+            side = cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis)
+            write(text, '(a,es9.3,a,i0,a,es9.3,a,f0.3,a)') 'the new spacing ', dx_new, &
+                ' m does not divide the box length on axis ', axis, ' (', side, ' m, ', &
+                side / dx_new, ' spacings)'
+            problem = trim(text)
+            return
+        end if
+        after = cfg
+        after%domain%dx = dx_new
+        call physics_from_config(after, phys, stat, errmsg)
+        if (stat /= 0) then
+            problem = 'at the new spacing: ' // errmsg
+            return
+        end if
+        do axis = 1, cfg%domain%dimension
+            if (.not. cfg%domain%is_periodic(axis)) cycle
+            side = cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis)
+            if (side >= 2.0_wp * phys%kernel%support) cycle
+            write(text, '(a,es9.3,a,i0,a,es9.3,a)') 'the kernel support at the new spacing (', &
+                phys%kernel%support, ' m) exceeds half the periodic box on axis ', axis, &
+                ' (', side, ' m)'
+            problem = trim(text)
+            return
+        end do
     end function spacing_problem
 
     !> The log lines of one remesh (rank 0 prints); stages as simulation_t's remesh_stages.
@@ -294,6 +319,7 @@ contains
         real(wp) :: time, dx_file
         integer, allocatable :: keep(:)
         character(len=32) :: number
+        character(len=:), allocatable :: problem
         logical :: out_exists
 
         mode = remesh_mode_code(mode_name)
@@ -320,8 +346,11 @@ contains
         ! a file remeshed before carries its spacing; its stored input has the original dx
         dx_file = stored_spacing(env, in_path)
         if (dx_file > 0.0_wp) cfg%domain%dx = dx_file
-        if (len(spacing_problem(cfg%domain, mode)) > 0) call fatal_collective('remesh', &
-            spacing_problem(cfg%domain, mode) // '; nothing written')
+        ! OUT is still written (its particles are what the rules make, for study), but no run
+        ! can continue it: say so before the work
+        problem = spacing_problem(cfg, mode)
+        if (len(problem) > 0) call log_warn('remesh: ' // problem // ': no run can continue ' // &
+            'OUT at that spacing (it is written for study)')
         call setup_common(sim, env, cfg)
         share = n_rows / env%nranks
         extra = mod(n_rows, int(env%nranks, i8))
