@@ -14,8 +14,8 @@ module sph_stepper
     use sph_mpi_env, only: mpi_env_t, global_sum, global_max, broadcast_text
     use sph_errors, only: fatal_collective
     use sph_logger, only: log_info
-    use sph_particles, only: particles_t, particles_gather, KIND_FLUID, HALO_DENSITY, HALO_MOVE, &
-        HALO_TRANSPORT, HALO_GHOST
+    use sph_particles, only: particles_t, particles_gather, KIND_FLUID, KIND_VIRTUAL, &
+        HALO_DENSITY, HALO_MOVE, HALO_TRANSPORT, HALO_GHOST
     use sph_physics, only: physics_t, DENSITY_SUMMATION, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR, &
         SHIFTING_NONE
     use sph_kernel, only: kernel_name
@@ -425,6 +425,16 @@ contains
         call read_checkpoint(env, path, sim%p, sim%domain, sim%time, sim%step, stored_input, &
             index_text, same_layout, stat, errmsg, stored_dx, balance)
         if (stat /= 0) call fatal_collective('restart', errmsg)
+        ! a multi-resolution state continued by an input without regions would run its fine
+        ! and virtual particles as if they were of the one level (a two-level channel did,
+        ! without a word)
+        if (.not. multires(sim)) then
+            if (global_max(env, int(count(sim%p%level(1:sim%p%n_owned) > 0 .or. &
+                sim%p%kind(1:sim%p%n_owned) == KIND_VIRTUAL), i8)) > 0) &
+                call fatal_collective('restart', 'the checkpoint holds a multi-resolution ' // &
+                'state (particles of finer levels and virtual particles): it continues with ' // &
+                'an input that has its &region groups (the input stored in it has them)')
+        end if
         ! the levels' balance as the checkpointed run had it (the reference mass, and for
         ! sub-cycled levels the pushes of the levels not evaluated at the next step)
         n = sim%zones%n_levels

@@ -352,6 +352,13 @@ contains
         if (len(problem) > 0) call log_warn('remesh: ' // problem // ': no run can continue ' // &
             'OUT at that spacing (it is written for study)')
         call setup_common(sim, env, cfg)
+        ! the remeshing rules take one spacing: the levels of a multi-resolution state would be
+        ! mixed into one set (a two-level channel refined gave 2020 particles where 2000 were
+        ! due, 7380 irregular cells)
+        if (multires(sim)) call fatal_collective('remesh', "IN '" // in_path // "' holds a " // &
+            'multi-resolution state (its stored input has &region groups): --remesh takes a ' // &
+            'single-resolution state (the resolution of regions is set by their &region ' // &
+            'groups, doc/multiresolution.md); nothing written')
         share = n_rows / env%nranks
         extra = mod(n_rows, int(env%nranks, i8))
         n = int(share + merge(1_i8, 0_i8, env%rank < extra))
