@@ -131,7 +131,7 @@ contains
     !> follows their nearest distances, and a class 1 above n_target is cut back to it (module
     !> header); the class 1 particles cut get tag 0.
     subroutine coarsen_select(dim, n, x, ids, dx, n_kept, kept, tag, stat, errmsg, box, &
-            given_match, n_target, follow_spacing)
+            given_match, n_target, follow_spacing, n_disordered)
         integer, intent(in) :: dim, n
         real(wp), intent(in) :: x(:, :), dx
         integer(i8), intent(in) :: ids(:)
@@ -144,6 +144,8 @@ contains
         logical, intent(in), optional :: given_match(:)
         integer, intent(in), optional :: n_target
         logical, intent(in), optional :: follow_spacing
+        !> particles whose rows sit off whole spacings (LATTICE_DEV): 0 on a near-lattice
+        integer, intent(out), optional :: n_disordered
         real(wp) :: r_conflict, r_row, bx(3), rc2
         logical :: periodic, follow
         integer, allocatable :: astart(:), adj(:), order(:)
@@ -158,6 +160,7 @@ contains
         integer :: depth
 
         if (present(stat)) stat = 0
+        if (present(n_disordered)) n_disordered = 0
         n_kept = 0
         allocate(kept(0), tag(max(n, 0)))
         periodic = present(box)
@@ -194,6 +197,7 @@ contains
             return
         end if
         call adjacency_and_parity()
+        if (present(n_disordered)) n_disordered = count(disordered)
         if (present(given_match)) match = given_match(1:n)
         ! a disordered particle's parity is noise that would order it by stripes of space
         if (follow) match = match .and. .not. disordered
