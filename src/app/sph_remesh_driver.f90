@@ -97,6 +97,7 @@ module sph_remesh_driver
     implicit none
     private
     public :: remesh_report_t, remesh_fluid, remesh_mode_code, remesh_spacing_factor
+    public :: fluid_mass_momentum, restore_momentum
     public :: REMESH_NONE, REMESH_REFINE, REMESH_COARSEN, REMESH_SAME
 
     integer, parameter :: REMESH_NONE = 0
@@ -192,7 +193,7 @@ contains
         integer(i8), allocatable :: ids(:), idn(:)
         integer :: n, n_new, my_stat
         integer(i8) :: base
-        real(wp) :: t0, t_transfer, local(4), ghost_ratio
+        real(wp) :: t0, t_transfer, ghost_ratio
         character(len=:), allocatable :: message
         logical, allocatable :: fluid(:)
 
@@ -203,9 +204,8 @@ contains
         ghost_ratio = real(max(p%n_total, 1), wp) / real(max(p%n_owned, 1), wp)
         ! totals before, over all ranks
         fluid = p%kind(1:p%n_owned) == KIND_FLUID
-        call fluid_totals(p, fluid, local)
         report%n_before = global_sum(env, int(count(fluid), i8))
-        call unpack_totals(global_sum(env, local), report%mass_before, report%momentum_before)
+        call fluid_mass_momentum(env, p, report%mass_before, report%momentum_before)
         base = global_max_id(env, p%id, p%n_owned)
 
         call gather_positions(env, p, fluid, n, x, ids)
@@ -237,11 +237,8 @@ contains
         if (refused()) return
         report%seconds_transfer = global_max(env, MPI_Wtime() - t_transfer)
 
-        deallocate(fluid)
-        fluid = p%kind(1:p%n_owned) == KIND_FLUID
-        call fluid_totals(p, fluid, local)
-        report%n_after = global_sum(env, int(count(fluid), i8))
-        call unpack_totals(global_sum(env, local), report%mass_after, report%momentum_after)
+        report%n_after = global_sum(env, int(count(p%kind(1:p%n_owned) == KIND_FLUID), i8))
+        call fluid_mass_momentum(env, p, report%mass_after, report%momentum_after)
 
     contains
 
@@ -532,7 +529,7 @@ contains
             integer, allocatable :: orig_o(:), orig_n(:)
             integer :: no, ns, i, nmf, nvf, own
             logical :: ok
-            real(wp) :: h, reach, mom_new(3), dv(3), scale, mass_new
+            real(wp) :: h, reach, scale, mass_new
             character(len=200) :: text
             st = 0
             text = ''
@@ -610,16 +607,9 @@ contains
             end if
             p%v(dim + 1:, 1:own) = 0.0_wp
             ! one uniform correction over all new particles: momentum as before
-            mom_new = 0.0_wp
+            call restore_momentum(env, dim, p, [(.true., i = 1, own)], report%momentum_before, &
+                mass_new)
             do i = 1, own
-                mom_new(1:dim) = mom_new(1:dim) + p%m(i) * p%v(1:dim, i)
-            end do
-            mom_new = global_sum(env, mom_new)
-            dv = 0.0_wp
-            if (mass_new > 0.0_wp) dv(1:dim) = (report%momentum_before(1:dim) - &
-                mom_new(1:dim)) / mass_new
-            do i = 1, own
-                p%v(1:dim, i) = p%v(1:dim, i) + dv(1:dim)
                 p%h(i) = h_new
                 p%x_old(:, i) = p%x(:, i)
                 p%v_old(:, i) = p%v(:, i)
@@ -882,6 +872,18 @@ contains
     end subroutine with_mirrors
 
     !> Local mass and momentum of the selected owned particles: (m, m vx, m vy, m vz).
+    !> Total mass and momentum of the owned fluid particles of p over all ranks (collective).
+    subroutine fluid_mass_momentum(env, p, mass, momentum)
+        type(mpi_env_t), intent(in) :: env
+        type(particles_t), intent(in) :: p
+        real(wp), intent(out) :: mass, momentum(3)
+        real(wp) :: totals(4)
+        call fluid_totals(p, p%kind(1:p%n_owned) == KIND_FLUID, totals)
+        totals = global_sum(env, totals)
+        mass = totals(1)
+        momentum = totals(2:4)
+    end subroutine fluid_mass_momentum
+
     subroutine fluid_totals(p, sel, totals)
         type(particles_t), intent(in) :: p
         logical, intent(in) :: sel(:)
@@ -895,10 +897,28 @@ contains
         end do
     end subroutine fluid_totals
 
-    pure subroutine unpack_totals(totals, mass, momentum)
-        real(wp), intent(in) :: totals(4)
-        real(wp), intent(out) :: mass, momentum(3)
-        mass = totals(1)
-        momentum = totals(2:4)
-    end subroutine unpack_totals
+    !> One uniform velocity added to the particles sel(1:size(sel)) of p (collective) so
+    !> that their total momentum becomes `momentum`, their total mass being `mass`: a
+    !> remesh's momentum correction (module header).
+    subroutine restore_momentum(env, dim, p, sel, momentum, mass)
+        type(mpi_env_t), intent(in) :: env
+        integer, intent(in) :: dim
+        type(particles_t), intent(inout) :: p
+        logical, intent(in) :: sel(:)
+        real(wp), intent(in) :: momentum(3), mass
+        real(wp) :: total(3), dv(3)
+        integer :: i
+        total = 0.0_wp
+        do i = 1, size(sel)
+            if (.not. sel(i)) cycle
+            total(1:dim) = total(1:dim) + p%m(i) * p%v(1:dim, i)
+        end do
+        total = global_sum(env, total)
+        dv = 0.0_wp
+        if (mass > 0.0_wp) dv(1:dim) = (momentum(1:dim) - total(1:dim)) / mass
+        do i = 1, size(sel)
+            if (.not. sel(i)) cycle
+            p%v(1:dim, i) = p%v(1:dim, i) + dv(1:dim)
+        end do
+    end subroutine restore_momentum
 end module sph_remesh_driver

@@ -12,7 +12,7 @@ submodule (sph_stepper) sph_stepper_remesh
     use sph_snapshot, only: read_snapshot_header, read_snapshot_rows
     use sph_checkpoint, only: write_checkpoint, stored_spacing
     use sph_remesh_driver, only: remesh_report_t, remesh_fluid, remesh_mode_code, &
-        remesh_spacing_factor, REMESH_NONE, REMESH_SAME
+        remesh_spacing_factor, fluid_mass_momentum, restore_momentum, REMESH_NONE, REMESH_SAME
     use sph_rates, only: compute_summation_density
     use sph_particles, only: HALO_GHOST
     use sph_domain_input, only: misfit_axis
@@ -182,9 +182,10 @@ contains
         type(remesh_report_t), intent(inout) :: report
         real(wp), allocatable :: handed(:)
         logical, allocatable :: fluid(:)
-        integer :: n, pass, i
-        real(wp) :: worst, mass, momentum(3), dv(3)
+        integer :: n, pass
+        real(wp) :: worst, mass
         n = sim%p%n_owned
+        allocate(fluid(n), handed(n))
         fluid = sim%p%kind(1:n) == KIND_FLUID
         handed = sim%p%rho(1:n)
         report%mass_passes = 0
@@ -202,22 +203,9 @@ contains
         ! the totals before the remesh
         mass = global_sum(env, sum(sim%p%m(1:n), mask=fluid))
         where (fluid) sim%p%m(1:n) = sim%p%m(1:n) * (report%mass_before / mass)
-        momentum = 0.0_wp
-        do i = 1, n
-            if (fluid(i)) momentum = momentum + sim%p%m(i) * sim%p%v(:, i)
-        end do
-        momentum = global_sum(env, momentum)
-        dv = 0.0_wp
-        dv(1:sim%p%dim) = (report%momentum_before(1:sim%p%dim) - momentum(1:sim%p%dim)) / &
-            report%mass_before
-        momentum = 0.0_wp
-        do i = 1, n
-            if (.not. fluid(i)) cycle
-            sim%p%v(:, i) = sim%p%v(:, i) + dv
-            momentum = momentum + sim%p%m(i) * sim%p%v(:, i)
-        end do
-        report%mass_after = global_sum(env, sum(sim%p%m(1:n), mask=fluid))
-        report%momentum_after = global_sum(env, momentum)
+        call restore_momentum(env, sim%p%dim, sim%p, fluid, report%momentum_before, &
+            report%mass_before)
+        call fluid_mass_momentum(env, sim%p, report%mass_after, report%momentum_after)
         call refresh_ghosts(sim, env, HALO_GHOST)
         call build_mirrors(sim%phys, sim%solids, sim%p)
         call compute_summation_density(sim%phys, sim%p, sim%nl)
