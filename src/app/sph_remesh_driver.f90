@@ -89,7 +89,8 @@ module sph_remesh_driver
         migrate_particles
     use sph_halo, only: halo_t, halo_setup, halo_build, halo_reverse_sum
     use sph_refine, only: refine_positions, WALL_BAND
-    use sph_solids, only: solids_t, solid_distance, solid_reflect, facing_plane, SOLID_PLANE
+    use sph_solids, only: solids_t, solid_distance, solid_reflect, facing_plane, corner_planes, &
+        MAX_CORNER_COMBOS, SOLID_PLANE
     use sph_remesh_relax, only: relax_displacements, relax_list_t, RELAX_PASSES, RELAX_H_FACTOR, &
         RELAX_TOLERANCE
     use sph_coarsen, only: coarsen_select
@@ -853,7 +854,8 @@ contains
         integer, intent(inout) :: ny
         real(wp), allocatable :: yt(:, :)
         integer, allocatable :: ot(:)
-        integer :: s, i, n0, ns, n_corner, near(3), nn, a, b, c
+        integer :: combos(3, MAX_CORNER_COMBOS)
+        integer :: s, i, n0, ns, n_corner, n_combos, c
         real(wp) :: d, z(3)
         if (.not. allocated(solids%list)) return
         ns = size(solids%list)
@@ -863,8 +865,8 @@ contains
         ! a point of a box, 3 pairs and 1 triple)
         n_corner = 0
         do i = 1, n0
-            call near_planes(y(:, i), near, nn)
-            n_corner = n_corner + nn * (nn - 1) / 2 + merge(1, 0, nn == 3)
+            call corner_planes(solids, y(:, i) + box_lo, dist, combos, n_combos)
+            n_corner = n_corner + n_combos
         end do
         allocate(yt(3, n0 * (ns + 1) + n_corner), ot(n0 * (ns + 1) + n_corner))
         yt(:, 1:n0) = y(:, 1:n0)
@@ -880,54 +882,20 @@ contains
             end do
         end do
         do i = 1, n0
-            call near_planes(y(:, i), near, nn)
-            do a = 1, nn - 1
-                do b = a + 1, nn
-                    z = solid_reflect(solids%list(near(b)), &
-                        solid_reflect(solids%list(near(a)), y(:, i) + box_lo))
-                    call add(z)
-                    do c = b + 1, nn
-                        call add(solid_reflect(solids%list(near(c)), z))
-                    end do
-                end do
+            call corner_planes(solids, y(:, i) + box_lo, dist, combos, n_combos)
+            do c = 1, n_combos
+                z = solid_reflect(solids%list(combos(2, c)), &
+                    solid_reflect(solids%list(combos(1, c)), y(:, i) + box_lo))
+                if (combos(3, c) /= 0) z = solid_reflect(solids%list(combos(3, c)), z)
+                ny = ny + 1
+                yt(:, ny) = z - box_lo
+                yt(dim + 1:, ny) = 0.0_wp
+                ot(ny) = orig(i)
             end do
         end do
         y = yt(:, 1:ny)
         orig = ot(1:ny)
 
-    contains
-
-        !> The planes (up to three, pairwise at right angles) within dist of point p.
-        subroutine near_planes(p, planes, n_near)
-            real(wp), intent(in) :: p(3)
-            integer, intent(out) :: planes(3), n_near
-            integer :: t, u
-            real(wp) :: dp
-            logical :: square
-            n_near = 0
-            planes = 0
-            do t = 1, ns
-                if (solids%list(t)%shape /= SOLID_PLANE) cycle
-                dp = solid_distance(solids%list(t), p + box_lo)
-                if (dp < 0.0_wp .or. dp >= dist) cycle
-                square = .true.
-                do u = 1, n_near
-                    if (abs(dot_product(solids%list(t)%normal, &
-                        solids%list(planes(u))%normal)) > 1.0e-6_wp) square = .false.
-                end do
-                if (.not. square .or. n_near == 3) cycle
-                n_near = n_near + 1
-                planes(n_near) = t
-            end do
-        end subroutine near_planes
-
-        subroutine add(z_abs)
-            real(wp), intent(in) :: z_abs(3)
-            ny = ny + 1
-            yt(:, ny) = z_abs - box_lo
-            yt(dim + 1:, ny) = 0.0_wp
-            ot(ny) = orig(i)
-        end subroutine add
     end subroutine with_mirrors
 
     !> Local mass and momentum of the selected owned particles: (m, m vx, m vy, m vz).

@@ -17,10 +17,14 @@ module sph_solids
     private
     public :: solid_t, solids_t, solids_add_plane, solid_distance, solid_normal
     public :: solid_velocity, solid_reflect, deepest_solid, solids_add_body, facing_plane
+    public :: corner_planes, MAX_CORNER_COMBOS
     public :: SOLID_PLANE, SOLID_CIRCLE, SOLID_SPHERE, SOLID_CYLINDER, SOLID_RECTANGLE
     public :: SOLID_BOX
 
     integer, parameter :: SOLID_PLANE = 1   !< the half-space behind a plane (a wall face)
+    !> corner_planes' room: the box's six faces give at most 12 pairs and 8 triples at right
+    !> angles
+    integer, parameter :: MAX_CORNER_COMBOS = 20
     integer, parameter :: SOLID_CIRCLE = 2  !< a disc (2D): centre, radius
     integer, parameter :: SOLID_SPHERE = 3  !< a ball (3D): centre, radius
     integer, parameter :: SOLID_CYLINDER = 4    !< (3D) centre, radius, axis; infinitely long
@@ -237,4 +241,50 @@ contains
             if (dot_product(solids%list(s)%normal, solids%list(t)%normal) < -0.999_wp) t_face = t
         end do
     end function facing_plane
+    !> The corners of planes at right angles (a box's) that point x lies next to: every pair
+    !> of planes within [0, dist) of x whose normals are perpendicular, and after each pair
+    !> every third such plane perpendicular to both (3D), as combos(:, 1:n_combos) (plane
+    !> numbers in increasing order, 0 third for a pair; at most six planes taken, the faces of
+    !> a box). among (optional): only those planes.
+    !> Mirroring across each plane of a combo in turn gives the image across that corner.
+    pure subroutine corner_planes(solids, x, dist, combos, n_combos, among)
+        type(solids_t), intent(in) :: solids
+        real(wp), intent(in) :: x(3), dist
+        integer, intent(out) :: combos(3, MAX_CORNER_COMBOS)
+        integer, intent(out) :: n_combos
+        logical, intent(in), optional :: among(:)
+        integer :: near(6), t, a, b, c, nn
+        real(wp) :: d
+        n_combos = 0
+        if (.not. allocated(solids%list)) return
+        nn = 0
+        do t = 1, size(solids%list)
+            if (solids%list(t)%shape /= SOLID_PLANE) cycle
+            if (present(among)) then
+                if (.not. among(t)) cycle
+            end if
+            d = solid_distance(solids%list(t), x)
+            if (d < 0.0_wp .or. d >= dist .or. nn == size(near)) cycle
+            nn = nn + 1
+            near(nn) = t
+        end do
+        do a = 1, nn - 1
+            do b = a + 1, nn
+                if (.not. square(near(a), near(b))) cycle
+                n_combos = n_combos + 1
+                combos(:, n_combos) = [near(a), near(b), 0]
+                do c = b + 1, nn
+                    if (.not. square(near(a), near(c)) .or. .not. square(near(b), near(c))) &
+                        cycle
+                    n_combos = n_combos + 1
+                    combos(:, n_combos) = [near(a), near(b), near(c)]
+                end do
+            end do
+        end do
+    contains
+        pure logical function square(p, q)
+            integer, intent(in) :: p, q
+            square = abs(dot_product(solids%list(p)%normal, solids%list(q)%normal)) < 1.0e-6_wp
+        end function square
+    end subroutine corner_planes
 end module sph_solids

@@ -137,7 +137,8 @@ module sph_refine
     use sph_remesh_images, only: with_periodic_images
     use sph_coarsen, only: id_hash
     use sph_key_sort, only: sort_by_keys
-    use sph_solids, only: solids_t, solid_distance, solid_normal, solid_reflect, facing_plane
+    use sph_solids, only: solids_t, solid_distance, solid_normal, solid_reflect, facing_plane, &
+        corner_planes, MAX_CORNER_COMBOS
     implicit none
     private
     public :: refine_positions, wall_map, EDGE_FACTOR, MIRROR_DEPTH, WALL_BAND, MIN_GAP
@@ -188,10 +189,11 @@ contains
         real(wp), allocatable :: xa(:, :)
         integer(i8), allocatable :: ida(:)
         logical, allocatable :: keep(:), moved(:)
-        integer, allocatable :: partner(:), near(:)
+        integer, allocatable :: partner(:)
+        integer :: combos(3, MAX_CORNER_COMBOS)
         real(wp) :: org(3), d, band, wb, y(3)
         integer(i8) :: span
-        integer :: na, a, s, s1, s2, s3, k, ns, nn, st, n_codes
+        integer :: na, a, s, c, k, ns, st, n_codes, n_combos
         logical :: pairs_on
 
         st = 0
@@ -244,30 +246,19 @@ contains
             ! right angles too, so that the corner's cell gets its centre, which the kept
             ! surfaces' rows need (without it a closed box lacks the particle of one corner)
             if (pairs_on) then
-                allocate(near(ns))
                 do a = 1, n
-                    nn = 0
-                    do s = 1, ns
-                        if (partner(s) == 0) cycle
-                        d = solid_distance(solids%list(s), x(:, a) + org)
-                        if (d < 0.0_wp .or. d >= MIRROR_DEPTH * dx) cycle
-                        nn = nn + 1
-                        near(nn) = s
-                    end do
-                    do s1 = 1, nn - 1
-                        do s2 = s1 + 1, nn
-                            if (.not. at_right_angles(near(s1), near(s2))) cycle
-                            y = solid_reflect(solids%list(near(s2)), &
-                                solid_reflect(solids%list(near(s1)), x(:, a) + org))
-                            call add_mirror(y, ns + (near(s1) - 1) * ns + near(s2), a)
-                            do s3 = s2 + 1, nn
-                                if (.not. at_right_angles(near(s1), near(s3)) .or. &
-                                    .not. at_right_angles(near(s2), near(s3))) cycle
-                                call add_mirror(solid_reflect(solids%list(near(s3)), y), &
-                                    ns + ns**2 + ((near(s1) - 1) * ns + near(s2) - 1) * ns &
-                                    + near(s3), a)
-                            end do
-                        end do
+                    call corner_planes(solids, x(:, a) + org, MIRROR_DEPTH * dx, combos, &
+                        n_combos, among=partner > 0)
+                    do c = 1, n_combos
+                        y = solid_reflect(solids%list(combos(2, c)), &
+                            solid_reflect(solids%list(combos(1, c)), x(:, a) + org))
+                        if (combos(3, c) == 0) then
+                            call add_mirror(y, ns + (combos(1, c) - 1) * ns + combos(2, c), a)
+                        else
+                            call add_mirror(solid_reflect(solids%list(combos(3, c)), y), &
+                                ns + ns**2 + ((combos(1, c) - 1) * ns + combos(2, c) - 1) * &
+                                ns + combos(3, c), a)
+                        end if
                     end do
                 end do
             end if
@@ -398,13 +389,6 @@ contains
             xa(dim + 1:, na) = 0.0_wp
             ida(na) = int(c, i8) * span + ids(a_orig)
         end subroutine add_mirror
-
-        !> Whether planes s and t (paired ones) meet at a right angle (a corner of a box).
-        pure logical function at_right_angles(s_a, s_b)
-            integer, intent(in) :: s_a, s_b
-            at_right_angles = abs(dot_product(solids%list(s_a)%normal, &
-                solids%list(s_b)%normal)) < 1.0e-6_wp
-        end function at_right_angles
 
         !> The points in key order: the caller's fresh ids follow the keys (sph_global_ids),
         !> so its sorts of the keys and then of the ids find them in order (one pass each
