@@ -79,6 +79,10 @@ contains
         !> each point's weight, and half the smallest (the bisection's tolerance)
         real(wp), allocatable :: w(:)
         real(wp) :: half_unit
+        !> the bisection's points still inside their bracket, and per node the weight below it
+        integer, allocatable :: inside(:)
+        integer :: n_inside
+        real(wp), allocatable :: below_fixed(:)
         integer(i8) :: total_count
 
         max_nodes = 2 * domain%nranks + 1
@@ -135,7 +139,17 @@ contains
                     xa(i) = 0.0_wp
                     if (slot(i) > 0) xa(i) = x(domain%node_axis(active(slot(i))), i)
                 end do
-                ! bisection on the cut: smallest c with weight(x < c) >= target
+                ! bisection on the cut: smallest c with weight(x < c) >= target. Each step
+                ! counts only the points still inside their node's bracket [a, b): those below
+                ! a are summed once into below_fixed, those at or above b never count. The
+                ! bracket halves, and so about does the set: some 2 n points visited instead of
+                ! bisection_steps n (the refinement of 10^5 particles spent 44 ms here on 2
+                ! ranks). Unit weights sum to the same integers in any order.
+                allocate(inside(n), below_fixed(n_active))
+                below_fixed = 0.0_wp
+                n_inside = n
+                inside = [(i, i = 1, n)]
+                call narrow_bracket()
                 do it = 1, bisection_steps
                     c = 0.5_wp * (a + b)
                     call weight_below(c, below)
@@ -144,8 +158,9 @@ contains
                     elsewhere
                         a = c
                     end where
+                    call narrow_bracket()
                 end do
-                deallocate(xa)
+                deallocate(xa, inside, below_fixed)
                 c = b
                 ! centre the cut in the gap between the particles on either side of it
                 local_max = -far; local_min = far
@@ -224,20 +239,40 @@ contains
 
     contains
 
+        !> The weight below each cut, over all ranks: below_fixed plus the points inside.
         subroutine weight_below(cut, result_weight)
             real(wp), intent(in) :: cut(:)
             real(wp), intent(out) :: result_weight(:)
-            integer :: j, kk
-            below_local = 0.0_wp
-            do j = 1, n
+            integer :: j, kk, q
+            below_local = below_fixed
+            do q = 1, n_inside
+                j = inside(q)
                 kk = slot(j)
-                if (kk == 0) cycle
                 if (xa(j) < cut(kk)) below_local(kk) = below_local(kk) + w(j)
             end do
             call MPI_Allreduce(below_local, result_weight, size(cut), mpi_wp, MPI_SUM, env%comm, &
                 ierr)
             call check_mpi(ierr, 'domain_partition')
         end subroutine weight_below
+
+        !> Keep in `inside` the points within their node's [a, b); the weight of those below
+        !> a goes to below_fixed (points of no active node drop out).
+        subroutine narrow_bracket()
+            integer :: j, kk, q, m
+            m = 0
+            do q = 1, n_inside
+                j = inside(q)
+                kk = slot(j)
+                if (kk == 0) cycle
+                if (xa(j) < a(kk)) then
+                    below_fixed(kk) = below_fixed(kk) + w(j)
+                else if (xa(j) < b(kk)) then
+                    m = m + 1
+                    inside(m) = j
+                end if
+            end do
+            n_inside = m
+        end subroutine narrow_bracket
 
         real(wp) function geometric_cut(kk)
             integer, intent(in) :: kk
