@@ -157,6 +157,10 @@ contains
         !> the predecessors of particle i: pred(pstart(i):pstart(i + 1) - 1)
         integer, allocatable :: pstart(:), pred(:)
         integer, allocatable :: stack(:), cursor(:)   !< the depth-first tagging's path
+        !> the fill pass's candidates (fill_candidates)
+        integer, allocatable :: fill_order(:)
+        real(wp), allocatable :: near_kept2(:)
+        integer :: n_fill_order
         integer :: depth
 
         if (present(stat)) stat = 0
@@ -283,6 +287,7 @@ contains
             integer, allocatable :: added(:), ord(:)
             integer(i8), allocatable :: hk(:, :)
             allocate(best(n))
+            call fill_candidates()
             lo = R_FILL_MIN * dx
             hi = r_conflict
             call fill(lo, keep, n_fill)
@@ -316,7 +321,35 @@ contains
             n_kept = count(tag(1:n) == KEPT_CLASS)
         end subroutine fill_to_target
 
-        !> Class 1 plus, in tagging order, every particle with no kept particle within r.
+        !> The particles a fill may add, in tagging order (fill_order), with the squared
+        !> distance to their nearest class 1 neighbour (near_kept2): one with a class 1
+        !> particle closer than R_FILL_MIN dx is never free. A fill pass at r then skips
+        !> at once those whose nearest class 1 neighbour lies within r, and reads the
+        !> adjacency of the rest only: the same test, as every class 1 neighbour lies at
+        !> least that far (the fill's 21 passes over every particle in hashed order were
+        !> half of a disordered set's selection).
+        subroutine fill_candidates()
+            integer :: kk, ii, pp, nf
+            real(wp) :: d2
+            allocate(near_kept2(n), fill_order(n))
+            nf = 0
+            do kk = 1, n
+                ii = order(kk)
+                if (tag(ii) == KEPT_CLASS) cycle
+                d2 = huge(1.0_wp)
+                do pp = astart(ii), astart(ii + 1) - 1
+                    if (tag(adj(pp)) == KEPT_CLASS) d2 = min(d2, adj_r2(pp))
+                end do
+                near_kept2(ii) = d2
+                if (d2 < (R_FILL_MIN * dx)**2) cycle
+                nf = nf + 1
+                fill_order(nf) = ii
+            end do
+            n_fill_order = nf
+        end subroutine fill_candidates
+
+        !> Class 1 plus, in tagging order, every particle with no kept particle within r
+        !> (fill_candidates).
         subroutine fill(r, keep, n_keep)
             real(wp), intent(in) :: r
             logical, allocatable, intent(inout) :: keep(:)
@@ -325,9 +358,9 @@ contains
             logical :: free
             if (.not. allocated(keep)) allocate(keep(n))
             keep = tag(1:n) == KEPT_CLASS
-            do kk = 1, n
-                ii = order(kk)
-                if (keep(ii)) cycle
+            do kk = 1, n_fill_order
+                ii = fill_order(kk)
+                if (near_kept2(ii) < r * r) cycle
                 free = .true.
                 do pp = astart(ii), astart(ii + 1) - 1
                     if (keep(adj(pp)) .and. adj_r2(pp) < r * r) then
