@@ -200,7 +200,8 @@ contains
             call fail('coarsen_select: repeated id')
             return
         end if
-        call adjacency_and_parity()
+        call adjacency_and_parity(dim, n, x, periodic, bx, dx, r_row, rc2, astart, adj, &
+            adj_r2, match, disordered, d_near)
         if (present(n_disordered)) n_disordered = count(disordered)
         if (present(given_match)) match = given_match(1:n)
         ! a disordered particle's parity is noise that would order it by stripes of space
@@ -373,89 +374,6 @@ contains
             n_keep = count(keep)
         end subroutine fill
 
-        !> Tagging neighbours within r_conflict (through periodic images if periodic),
-        !> deduplicated, and the lattice parity match of every particle from its rows. The
-        !> pairs within r_row are visited straight from the cells (cells of r_row / 2, the
-        !> positions copied in the cell order), not through a stored neighbour list: the
-        !> list's 40 entries a particle were mostly new pages to touch, and a second pass.
-        subroutine adjacency_and_parity()
-            real(wp), allocatable :: xa(:, :), ys(:, :), adj_r2_more(:)
-            integer, allocatable :: orig(:), adj_more(:)
-            type(cell_grid_t) :: grid
-            integer :: a, m, ntot, b, ax, row_count(3), q, r, n_runs, first(25), last(25)
-            integer(i8) :: dev_sum(3), dev_abs(3), dev
-            real(wp) :: d(3), r2, u, scale, half, rr2, r2_near
-            logical :: in_row(3)
-            scale = 2.0_wp**DEV_BITS
-            half = 0.5_wp * dx
-            rr2 = r_row * r_row
-            call with_periodic_images(dim, n, x, periodic, bx, r_row, xa, orig, ntot)
-            call bin_particles(xa, ntot, dim, 0.5_wp * r_row, grid)
-            allocate(ys(max(ntot, 1), 3))
-            do q = 1, ntot
-                ys(q, :) = xa(:, grid%sorted(q))
-            end do
-            ! about 8 (2D) or 18 (3D) tagging neighbours a particle; grown when short
-            allocate(astart(n + 1), adj(max(2 * 3**dim * n, 1)), adj_r2(max(2 * 3**dim * n, 1)))
-            m = 0
-            do a = 1, n
-                astart(a) = m + 1
-                dev_sum = 0_i8
-                dev_abs = 0_i8
-                row_count = 1
-                r2_near = rc2
-                call cell_runs(grid, xa(:, a), 2, first, last, n_runs)
-                do r = 1, n_runs
-                    do q = first(r), last(r)
-                        d = ys(q, :) - xa(:, a)
-                        d(dim + 1:) = 0.0_wp
-                        r2 = d(1)**2 + d(2)**2 + d(3)**2
-                        if (r2 >= rr2) cycle
-                        b = orig(grid%sorted(q))
-                        if (b == a) cycle
-                        ! a row along an axis: within half a spacing on the other axes
-                        in_row(1) = abs(d(2)) < half .and. abs(d(3)) < half
-                        in_row(2) = abs(d(1)) < half .and. abs(d(3)) < half
-                        in_row(3) = abs(d(1)) < half .and. abs(d(2)) < half
-                        do ax = 1, dim
-                            if (.not. in_row(ax)) cycle
-                            u = d(ax) / dx
-                            dev = nearest_i8((u - round_half_away(u)) * scale)
-                            dev_sum(ax) = dev_sum(ax) + dev
-                            dev_abs(ax) = dev_abs(ax) + abs(dev)
-                            row_count(ax) = row_count(ax) + 1
-                        end do
-                        ! one image of b at most: two lie a box length (> 2 r_row) apart
-                        if (r2 >= rc2) cycle
-                        if (m == size(adj)) then
-                            allocate(adj_more(2 * m), adj_r2_more(2 * m))
-                            adj_more(1:m) = adj
-                            adj_r2_more(1:m) = adj_r2
-                            call move_alloc(adj_more, adj)
-                            call move_alloc(adj_r2_more, adj_r2)
-                        end if
-                        m = m + 1
-                        adj(m) = b
-                        adj_r2(m) = r2
-                        r2_near = min(r2_near, r2)
-                    end do
-                end do
-                match(a) = .true.
-                disordered(a) = .false.
-                do ax = 1, dim
-                    u = x(ax, a) / dx + real(dev_sum(ax), wp) / (scale * row_count(ax))
-                    if (modulo(floor(u - PHASE_CUT), 2) /= 0) match(a) = .false.
-                    ! mean |offset| over the row (itself not counted); no row: lattice-like
-                    if (row_count(ax) > 1) then
-                        if (real(dev_abs(ax), wp) >= LATTICE_DEV * scale * (row_count(ax) - 1)) &
-                            disordered(a) = .true.
-                    end if
-                end do
-                d_near(a) = sqrt(r2_near)
-            end do
-            astart(n + 1) = m + 1
-        end subroutine adjacency_and_parity
-
         !> pstart/pred: each particle's tagging neighbours before it in the order; with
         !> follow, a pair of disordered particles only within their own radius (module
         !> header).
@@ -522,6 +440,101 @@ contains
             error stop 'coarsen_select: invalid input'
         end subroutine fail
     end subroutine coarsen_select
+
+    !> coarsen_select's tagging neighbours within sqrt(rc2) (through periodic images if
+    !> periodic), deduplicated, and the lattice parity match of every particle from its rows,
+    !> with the disordered flags and nearest distances (module header). The pairs within
+    !> r_row are visited straight from the cells (cells of r_row / 2, the positions copied in
+    !> the cell order), not through a stored neighbour list: the list's 40 entries a particle
+    !> were mostly new pages to touch, and a second pass. A procedure of the module with its
+    !> arrays as arguments, not one nested in coarsen_select: nested, it ran at half the
+    !> speed whenever the compiler chose not to inline it (which it did when coarsen_select's
+    !> other code changed), reading the host's arrays through their descriptors.
+    subroutine adjacency_and_parity(dim, n, x, periodic, bx, dx, r_row, rc2, astart, adj, &
+            adj_r2, match, disordered, d_near)
+        integer, intent(in) :: dim, n
+        real(wp), intent(in) :: x(:, :), bx(3), dx, r_row, rc2
+        logical, intent(in) :: periodic
+        integer, allocatable, intent(out) :: astart(:), adj(:)
+        real(wp), allocatable, intent(out) :: adj_r2(:)
+        logical, intent(out) :: match(:), disordered(:)
+        real(wp), intent(out) :: d_near(:)
+        real(wp), allocatable :: xa(:, :), ys(:, :), adj_r2_more(:)
+        integer, allocatable :: orig(:), adj_more(:)
+        type(cell_grid_t) :: grid
+        integer :: a, m, ntot, b, ax, row_count(3), q, r, n_runs, first(25), last(25)
+        integer(i8) :: dev_sum(3), dev_abs(3), dev
+        real(wp) :: d(3), r2, u, scale, half, rr2, r2_near
+        logical :: in_row(3)
+        scale = 2.0_wp**DEV_BITS
+        half = 0.5_wp * dx
+        rr2 = r_row * r_row
+        call with_periodic_images(dim, n, x, periodic, bx, r_row, xa, orig, ntot)
+        call bin_particles(xa, ntot, dim, 0.5_wp * r_row, grid)
+        allocate(ys(max(ntot, 1), 3))
+        do q = 1, ntot
+            ys(q, :) = xa(:, grid%sorted(q))
+        end do
+        ! about 8 (2D) or 18 (3D) tagging neighbours a particle; grown when short
+        allocate(astart(n + 1), adj(max(2 * 3**dim * n, 1)), adj_r2(max(2 * 3**dim * n, 1)))
+        m = 0
+        do a = 1, n
+            astart(a) = m + 1
+            dev_sum = 0_i8
+            dev_abs = 0_i8
+            row_count = 1
+            r2_near = rc2
+            call cell_runs(grid, xa(:, a), 2, first, last, n_runs)
+            do r = 1, n_runs
+                do q = first(r), last(r)
+                    d = ys(q, :) - xa(:, a)
+                    d(dim + 1:) = 0.0_wp
+                    r2 = d(1)**2 + d(2)**2 + d(3)**2
+                    if (r2 >= rr2) cycle
+                    b = orig(grid%sorted(q))
+                    if (b == a) cycle
+                    ! a row along an axis: within half a spacing on the other axes
+                    in_row(1) = abs(d(2)) < half .and. abs(d(3)) < half
+                    in_row(2) = abs(d(1)) < half .and. abs(d(3)) < half
+                    in_row(3) = abs(d(1)) < half .and. abs(d(2)) < half
+                    do ax = 1, dim
+                        if (.not. in_row(ax)) cycle
+                        u = d(ax) / dx
+                        dev = nearest_i8((u - round_half_away(u)) * scale)
+                        dev_sum(ax) = dev_sum(ax) + dev
+                        dev_abs(ax) = dev_abs(ax) + abs(dev)
+                        row_count(ax) = row_count(ax) + 1
+                    end do
+                    ! one image of b at most: two lie a box length (> 2 r_row) apart
+                    if (r2 >= rc2) cycle
+                    if (m == size(adj)) then
+                        allocate(adj_more(2 * m), adj_r2_more(2 * m))
+                        adj_more(1:m) = adj
+                        adj_r2_more(1:m) = adj_r2
+                        call move_alloc(adj_more, adj)
+                        call move_alloc(adj_r2_more, adj_r2)
+                    end if
+                    m = m + 1
+                    adj(m) = b
+                    adj_r2(m) = r2
+                    r2_near = min(r2_near, r2)
+                end do
+            end do
+            match(a) = .true.
+            disordered(a) = .false.
+            do ax = 1, dim
+                u = x(ax, a) / dx + real(dev_sum(ax), wp) / (scale * row_count(ax))
+                if (modulo(floor(u - PHASE_CUT), 2) /= 0) match(a) = .false.
+                ! mean |offset| over the row (itself not counted); no row: lattice-like
+                if (row_count(ax) > 1) then
+                    if (real(dev_abs(ax), wp) >= LATTICE_DEV * scale * (row_count(ax) - 1)) &
+                        disordered(a) = .true.
+                end if
+            end do
+            d_near(a) = sqrt(r2_near)
+        end do
+        astart(n + 1) = m + 1
+    end subroutine adjacency_and_parity
 
     !> anint(u) (halves away from zero) without the library call that gfortran makes of it
     !> (about 5 % of a coarsening's selection); exact for |u| < 2^52.
