@@ -120,6 +120,8 @@ def main():
         writer.writerows(rows)
 
     for name, title in [('remesh', 'remeshing throughput (sphremesh_bench_remesh)'),
+                        ('remesh_jitter', 'remeshing throughput, jittered set '
+                                          '(sphremesh_bench_remesh 316 all 0.8)'),
                         ('multires', 'multi-resolution cost study (sphremesh_bench_multires, '
                                      '20 steps, fastest of 3 alternations)')]:
         print('\n# ' + title)
