@@ -71,7 +71,6 @@ module sph_stepper
         integer(i8) :: step = 0
         real(wp) :: skin = 0.0_wp          !< ghost skin: covers any motion within one step
         real(wp) :: list_skin = 0.0_wp     !< neighbour-list skin: lets a list serve both stages
-        integer :: steps_since_rebuild = 0  !< steps since the list was last built in full
         !> bound on how far any particle has moved since the last migration and halo build
         !> (the sum of the steps' largest displacements, over all ranks)
         real(wp) :: drift = 0.0_wp
@@ -409,7 +408,7 @@ contains
         integer :: stat
         logical :: same_layout, is_directory
         character(len=256) :: line
-        real(wp) :: stored_dx, stored_skin
+        real(wp) :: stored_dx
         real(wp), allocatable :: balance(:)
         integer :: n
 
@@ -424,10 +423,8 @@ contains
             path = from
         end if
         call read_checkpoint(env, path, sim%p, sim%domain, sim%time, sim%step, stored_input, &
-            index_text, same_layout, stat, errmsg, stored_dx, balance, stored_skin)
+            index_text, same_layout, stat, errmsg, stored_dx, balance)
         if (stat /= 0) call fatal_collective('restart', errmsg)
-        ! the list skin the run had chosen (adapt_list_skin), so that it continues bit for bit
-        if (stored_skin > 0.0_wp .and. .not. multires(sim)) sim%list_skin = stored_skin
         ! a multi-resolution state continued by an input without regions would run its fine
         ! and virtual particles as if they were of the one level (a two-level channel did,
         ! without a word)
@@ -578,7 +575,6 @@ contains
         call refresh_neighbours(sim)
         call timers_leave(sim%timers, previous)
         sim%drift = 0.0_wp
-        sim%steps_since_rebuild = 0
         sim%refresh_plan%valid = .false.
     end subroutine simulation_prepare_neighbours
 
@@ -949,7 +945,6 @@ contains
         else
             sim%drift = sim%drift + global_max(env, max_step_displacement(sim%p))
         end if
-        sim%steps_since_rebuild = sim%steps_since_rebuild + 1
         if (2.0_wp * sim%drift < 0.5_wp * sim%list_skin) then
             ! the sub-cycled step reads no ghost field before its next drift refreshes them
             ! (a zone update or a rebalance builds the halo anew)
@@ -957,37 +952,12 @@ contains
             if (uses_mirrors(sim)) call refresh_neighbours(sim)
             if (multires(sim) .and. .not. present(subcycled)) call refresh_virtuals(sim, env)
         else
-            call adapt_list_skin(sim)
             call migrate(sim, env)
             call simulation_prepare_neighbours(sim, env)
             sim%zones_due = multires(sim)
         end if
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
     end subroutine migrate_and_rebuild
-
-    !> The neighbour-list skin for the lists to come, from how far the particles moved per
-    !> step since the last full rebuild (d: the drift over the steps). A list serves while
-    !> 2 drift < skin / 2, so about skin / (4 d) steps: a skin of LIST_SKIN_STEPS 4 d, within
-    !> [LIST_SKIN_MIN, LIST_SKIN_MAX] h, changed when it is off by more than a quarter. Slow
-    !> flows keep the smallest (the channels move 1e-9 m a step against 8e-7: rebuilt about
-    !> every 500 steps); a flow limited by the sound speed moves about Ma/4 h a step (the L/50
-    !> cylinder 0.04-0.05 h) and rebuilt its list at every step with 0.1 h: 0.4 h took its
-    !> run from 14.3 to 12.8 s (the larger list costs the pair loop 10 %). The same on every
-    !> rank (the drift is global); stored with checkpoints. One resolution level only: the
-    !> transition zones are made anew at each rebuild.
-    subroutine adapt_list_skin(sim)
-        type(simulation_t), intent(inout) :: sim
-        real(wp), parameter :: LIST_SKIN_MIN = 0.1_wp, LIST_SKIN_MAX = 0.5_wp
-        integer, parameter :: LIST_SKIN_STEPS = 4
-        real(wp) :: wanted
-        if (multires(sim)) return
-        wanted = LIST_SKIN_STEPS * 4.0_wp * sim%drift / real(max(sim%steps_since_rebuild, 1), wp)
-        wanted = min(max(wanted, LIST_SKIN_MIN * sim%phys%kernel%h), &
-            LIST_SKIN_MAX * sim%phys%kernel%h)
-        if (abs(wanted - sim%list_skin) <= 0.25_wp * sim%list_skin) return
-        sim%list_skin = wanted
-        call halo_setup(sim%halo, sim%domain, halo_reach(sim))
-    end subroutine adapt_list_skin
 
     !> The virtual particles (of the levels `ended`, all when absent) take the other level's
     !> fields where they now are; their ghosts follow.

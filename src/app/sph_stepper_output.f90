@@ -28,7 +28,7 @@ contains
             reshape(sim%level_push, [size(sim%level_push)]), sim%level_push_mass]
         call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, &
             sim%cfg%domain%dimension, code_version, sim%input_text, sim%snapshot_index, stat, &
-            errmsg, sim%cfg%domain%dx, balance, sim%list_skin)
+            errmsg, sim%cfg%domain%dx, balance)
         if (stat /= 0) call fatal_collective('checkpoint', errmsg)
         if (all(sim%checkpoints /= path)) &
             sim%checkpoints = [character(len=512) :: sim%checkpoints, path]

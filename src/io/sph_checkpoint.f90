@@ -40,8 +40,7 @@ contains
     !> state (after a refine or coarsen it differs from the input's &domain dx, which a
     !> restart checks, see read_checkpoint).
     subroutine write_checkpoint(env, p, domain, path, time, step, dimension, code_version, &
-                                input_text, snapshot_index, stat, errmsg, dx, balance, &
-                                list_skin)
+                                input_text, snapshot_index, stat, errmsg, dx, balance)
         type(mpi_env_t), intent(in) :: env
         type(particles_t), intent(inout) :: p
         type(domain_t), intent(in) :: domain
@@ -55,8 +54,6 @@ contains
         !> a multi-resolution run's balance of its levels (sph_stepper: the reference mass
         !> and each level's last virtual push), stored as 'checkpoint/level_balance'
         real(wp), intent(in), optional :: balance(:)
-        !> the neighbour list's skin the run had chosen (sph_stepper), stored as 'list_skin'
-        real(wp), intent(in), optional :: list_skin
         type(h5_file_t) :: file
         integer :: n, n_tree, k
         integer(i8) :: my_rows(1), offset, total
@@ -78,7 +75,6 @@ contains
         call h5_write_attribute(file, 'checkpoint_format_version', checkpoint_format_version)
         call h5_write_attribute(file, 'snapshot_index', snapshot_index)
         if (present(dx)) call h5_write_attribute(file, 'dx', dx)
-        if (present(list_skin)) call h5_write_attribute(file, 'list_skin', list_skin)
         call h5_row_layout(env, n, offset, total)
         call write_particle_fields(env, file, p, FIELD_CHECKPOINT, [(k, k = 1, n)], n, offset, &
             total)
@@ -108,7 +104,7 @@ contains
     !> otherwise the caller must partition and migrate. Refuses incomplete or foreign files.
     !> dx: the particle spacing stored by write_checkpoint, 0 when the file has none.
     subroutine read_checkpoint(env, path, p, domain, time, step, input_text, snapshot_index, &
-                               same_layout, stat, errmsg, dx, balance, list_skin)
+                               same_layout, stat, errmsg, dx, balance)
         type(mpi_env_t), intent(in) :: env
         character(len=*), intent(in) :: path
         type(particles_t), intent(inout) :: p
@@ -122,10 +118,9 @@ contains
         real(wp), intent(out), optional :: dx
         !> what write_checkpoint stored as `balance`; empty when the file holds none
         real(wp), allocatable, intent(out), optional :: balance(:)
-        !> what write_checkpoint stored as `list_skin`; 0 when the file holds none
-        real(wp), intent(out), optional :: list_skin
         type(h5_file_t) :: file
-        integer :: dimension, n, n_tree
+        integer :: dimension, n, n_tree, dx_stat
+        real(wp) :: stored_dx
         integer(i4) :: version, nranks_file
         integer(i8) :: n_rows, offset, share, extra
         integer(i8), allocatable :: rank_rows(:)
@@ -152,8 +147,13 @@ contains
             return
         end if
         call h5_read_attribute(file, 'snapshot_index', snapshot_index, stat)
-        if (present(dx)) dx = optional_real_attribute(file, 'dx')
-        if (present(list_skin)) list_skin = optional_real_attribute(file, 'list_skin')
+        if (present(dx)) then
+            dx = 0.0_wp
+            if (h5_attribute_exists(file, 'dx')) then
+                call h5_read_attribute(file, 'dx', stored_dx, dx_stat)
+                if (dx_stat == 0) dx = stored_dx
+            end if
+        end if
         if (present(balance)) then
             n = int(max(h5_dataset_rows(file, 'checkpoint/level_balance'), 0_i8))
             allocate(balance(n))
@@ -206,21 +206,12 @@ contains
         dx = 0.0_wp
         call h5_open_read(env, path, file, stat)
         if (stat /= 0) return
-        dx = optional_real_attribute(file, 'dx')
+        if (h5_attribute_exists(file, 'dx')) then
+            call h5_read_attribute(file, 'dx', dx, stat)
+            if (stat /= 0) dx = 0.0_wp
+        end if
         call h5_close(file)
     end function stored_spacing
-
-    !> The float64 root attribute `name` of an open file, 0 when it has none or it cannot be
-    !> read (an older checkpoint, a snapshot).
-    real(wp) function optional_real_attribute(file, name) result(value)
-        type(h5_file_t), intent(in) :: file
-        character(len=*), intent(in) :: name
-        integer :: stat
-        value = 0.0_wp
-        if (.not. h5_attribute_exists(file, name)) return
-        call h5_read_attribute(file, name, value, stat)
-        if (stat /= 0) value = 0.0_wp
-    end function optional_real_attribute
 
     !> The newest complete checkpoint of `case_name` in `directory` (collective). Incomplete
     !> or unreadable candidates are skipped and named in `skipped`.
