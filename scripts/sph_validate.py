@@ -97,12 +97,13 @@ class Runner:
     def run(self, name, source, overrides, nranks=None, restart=None):
         """Run input/`source` with `overrides` {group: {key: value}} as work/name (from the
         checkpoint `restart` if given); returns the output folder (None when the run failed).
-        With --reuse a finished run is kept."""
+        With --reuse a finished run is kept. A run is reused only when it was made from
+        the same input on the same number of ranks (validate.done records both): cases
+        that share a run's name but not its rank count (the cylinder lattice on 1 rank,
+        its remeshing on the default count) would otherwise measure whichever ran first,
+        and a chaotic flow differs in its details between rank counts."""
         out = os.path.join(self.work, name)
         done = os.path.join(out, "validate.done")
-        if (self.reuse or name in self.finished) and os.path.exists(done):
-            return out
-        os.makedirs(out, exist_ok=True)
         with open(os.path.join(ROOT, "input", source)) as f:
             text = f.read()
         overrides = dict(overrides)
@@ -110,13 +111,19 @@ class Runner:
         overrides["output"] = dict(overrides["output"], output_dir=out)
         for group, values in overrides.items():
             text = set_keys(text, group, values)
+        np_ = nranks or self.nranks
+        stamp = f"ranks {np_}\nrestart {restart}\n{text}"
+        if (self.reuse or name in self.finished) and os.path.exists(done):
+            with open(done) as f:
+                if f.read() == stamp:
+                    return out
+        os.makedirs(out, exist_ok=True)
         nml = os.path.join(self.work, name + ".nml")
         with open(nml, "w") as f:
             f.write(text)
         for old in os.listdir(out):
             if old.endswith(".h5") or old.endswith(".csv") or old.endswith(".xdmf"):
                 os.remove(os.path.join(out, old))
-        np_ = nranks or self.nranks
         cmd = ["mpirun", "-np", str(np_)]
         if np_ > (os.cpu_count() or 1):
             cmd.append("--oversubscribe")
@@ -130,7 +137,8 @@ class Runner:
             self.failures.append(f"{name}: sphremesh exited with {status} "
                                  f"(log {os.path.join(self.work, name + '.log')})")
             return None
-        open(done, "w").close()
+        with open(done, "w") as f:
+            f.write(stamp)
         self.finished.add(name)
         return out
 
