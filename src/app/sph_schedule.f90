@@ -283,7 +283,7 @@ contains
         real(wp) :: wall_now, error
         character(len=256) :: line
         call wall_clock(wall_now)
-        write(line, '(a,i0,a,es12.5,a,f10.2,a)') 'finished: ', sim%step - sched%first_step, &
+        write(line, '(a,i0,a,es12.5,a,f11.3,a)') 'finished: ', sim%step - sched%first_step, &
             ' steps to t = ', sim%time, ' s in ', wall_now - sched%wall_start, ' s wall'
         call log_info(trim(line))
         call log_peak_memory(sim, env)

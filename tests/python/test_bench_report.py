@@ -25,7 +25,7 @@ def log_text(particles, steps, wall, evaluations, neighbours=20.0, bytes_per=800
                       for name, f in zip(bench_report.PARTS, split))
     return '\n'.join([
         'particles: %d real (fluid %d), load imbalance  1.000' % (particles, particles - 10),
-        'finished: %d steps to t =  2.64063E-02 s in %10.2f s wall' % (steps, wall),
+        'finished: %d steps to t =  2.64063E-02 s in %11.3f s wall' % (steps, wall),
         'peak memory:       87.0 MB over all ranks (largest rank       87.0 MB), '
         '%8.1f bytes per particle' % bytes_per,
         'time split: %s; %.3f s timed, %d rate evaluations' % (parts, wall, evaluations),
