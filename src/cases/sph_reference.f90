@@ -96,7 +96,6 @@ contains
         select case (trim(ref%name))
         case ('poiseuille')
             y = x(ref%normal_axis) - ref%lo
-            exact(ref%flow_axis) = series_velocity(profile, y)
         case ('couette')
             ! distance from the resting wall
             if (ref%lower_moves) then
@@ -104,8 +103,10 @@ contains
             else
                 y = x(ref%normal_axis) - ref%lo
             end if
-            exact(ref%flow_axis) = series_velocity(profile, y)
+        case default
+            return
         end select
+        exact(ref%flow_axis) = series_velocity(profile, y)
     end function velocity_on
 
     !> This rank's partial sums of the relative L2 velocity error over its owned fluid
