@@ -91,48 +91,22 @@ contains
             end if
         end do
     contains
-        !> No particle among 1..n can fail a check of the search: every value finite and, for
-        !> fluid particles, the density in its band and no plane crossed deeper than a hair
-        !> less than the slack (a superset of the search's hits, whatever the rounding of the
-        !> dot products).
+        !> No particle among 1..n can fail a check of the search (screen_clear's, block by
+        !> block, so that its loops find a block's values in the cache: one pass over memory
+        !> instead of 2 + n_solids).
         logical function all_clear(n)
             integer, intent(in) :: n
-            real(wp) :: band, s, thr
-            integer :: j, kk, n_bad, j0, j1
-            ! no branches (and no .and., which gfortran evaluates by branching), so that the
-            ! loops vectorise; the comparisons only once every value is known to be finite (a
-            ! NaN in an ordered comparison raises the invalid flag, which Debug builds trap).
-            ! Block by block, so that the later loops find a block's values in the cache (one
-            ! pass over memory instead of 2 + n_solids: 4.3 -> ns a particle-step at 10^6)
-            n_bad = 0
-            band = limits%density_band * rho0
-            thr = -(1.0_wp - SCREEN_HAIR) * IN_SOLID_SLACK
+            integer :: j0, j1
             do j0 = 1, n, SCREEN_BLOCK
                 j1 = min(n, j0 + SCREEN_BLOCK - 1)
-                do j = j0, j1
-                    s = EIGHTH * p%x(1, j) + EIGHTH * p%x(2, j) + EIGHTH * p%x(3, j) + &
-                        EIGHTH * p%v(1, j) + EIGHTH * p%v(2, j) + EIGHTH * p%v(3, j) + &
-                        EIGHTH * p%rho(j)
-                    n_bad = n_bad + merge(0, 1, ieee_is_finite(s))
-                end do
-                if (n_bad > 0) then
+                if (.not. screen_clear(j1 - j0 + 1, p%x(:, j0:j1), p%v(:, j0:j1), &
+                    p%rho(j0:j1), p%kind(j0:j1), p%h(j0:j1), rho0, limits%density_band, &
+                    n_solids, normal, point)) then
                     all_clear = .false.
                     return
                 end if
-                do j = j0, j1
-                    n_bad = n_bad + merge(1, 0, p%kind(j) == KIND_FLUID) * &
-                        merge(1, 0, abs(p%rho(j) - rho0) > band)
-                end do
-                do kk = 1, n_solids
-                    do j = j0, j1
-                        n_bad = n_bad + merge(1, 0, p%kind(j) == KIND_FLUID) * merge(1, 0, &
-                            normal(1, kk) * (p%x(1, j) - point(1, kk)) + normal(2, kk) * &
-                            (p%x(2, j) - point(2, kk)) + normal(3, kk) * &
-                            (p%x(3, j) - point(3, kk)) < thr * p%h(j))
-                    end do
-                end do
             end do
-            all_clear = n_bad == 0
+            all_clear = .true.
         end function all_clear
 
         !> x lies deeper than slack inside some solid.
@@ -160,6 +134,48 @@ contains
             problem%what = what
         end subroutine found
     end subroutine check_particles
+
+    !> No particle of a block of n can fail a check of check_particles' search: every value
+    !> finite and, for fluid particles, the density in its band and no plane crossed deeper
+    !> than a hair less than the slack (a superset of the search's hits, whatever the
+    !> rounding of the dot products). Explicit shapes and no branches (nor .and., which
+    !> gfortran evaluates by branching), so that the loops vectorise over the whole vector
+    !> width: with the strides unknown (the particle arrays' sections) they ran two lanes
+    !> wide and gathered x and v, 3 % of a channel step. The comparisons only once every
+    !> value is known to be finite (a NaN in an ordered comparison raises the invalid flag,
+    !> which Debug builds trap).
+    logical function screen_clear(n, x, v, rho, kind, h, rho0, density_band, n_solids, &
+            normal, point)
+        integer, intent(in) :: n, kind(n), n_solids
+        real(wp), intent(in) :: x(3, n), v(3, n), rho(n), h(n), rho0, density_band
+        real(wp), intent(in) :: normal(3, n_solids), point(3, n_solids)
+        real(wp), parameter :: EIGHTH = 0.125_wp
+        real(wp) :: band, s, thr
+        integer :: j, kk, n_bad
+        n_bad = 0
+        do j = 1, n
+            s = EIGHTH * x(1, j) + EIGHTH * x(2, j) + EIGHTH * x(3, j) + EIGHTH * v(1, j) + &
+                EIGHTH * v(2, j) + EIGHTH * v(3, j) + EIGHTH * rho(j)
+            n_bad = n_bad + merge(0, 1, ieee_is_finite(s))
+        end do
+        screen_clear = .false.
+        if (n_bad > 0) return
+        band = density_band * rho0
+        thr = -(1.0_wp - SCREEN_HAIR) * IN_SOLID_SLACK
+        do j = 1, n
+            n_bad = n_bad + merge(1, 0, kind(j) == KIND_FLUID) * &
+                merge(1, 0, abs(rho(j) - rho0) > band)
+        end do
+        do kk = 1, n_solids
+            do j = 1, n
+                n_bad = n_bad + merge(1, 0, kind(j) == KIND_FLUID) * merge(1, 0, &
+                    normal(1, kk) * (x(1, j) - point(1, kk)) + normal(2, kk) * &
+                    (x(2, j) - point(2, kk)) + normal(3, kk) * (x(3, j) - point(3, kk)) < &
+                    thr * h(j))
+            end do
+        end do
+        screen_clear = n_bad == 0
+    end function screen_clear
 
     !> The time step against the first one of the run.
     subroutine check_timestep(limits, first_dt, dt, problem)
