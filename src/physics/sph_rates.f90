@@ -450,22 +450,9 @@ contains
                 if (.not. (p%kind(i) == KIND_FLUID .or. p%kind(i) == KIND_VIRTUAL)) cycle
                 xi = p%x(:, i)
                 n_near = n_block
-                n_other = 0
-                do k = half_start(i), half_start(i + 1) - 1
-                    j = half_index(k)
-                    d = xi - p%x(:, j)
-                    r2 = d(1)**2 + d(2)**2 + d(3)**2
-                    if (r2 <= 0.0_wp .or. r2 >= support2) cycle
-                    if (fast_fluid .and. .not. flows(j)) then
-                        n_other = n_other + 1
-                        other(n_other) = j
-                        cycle
-                    end if
-                    n_near = n_near + 1
-                    near(n_near) = j
-                    d_near(:, n_near) = d
-                    r2_near(n_near) = r2
-                end do
+                call find_row(xi, half_index(half_start(i):half_start(i + 1) - 1), &
+                    half_start(i + 1) - half_start(i), p%x, flows, fast_fluid, support2, near, &
+                    d_near, r2_near, n_near, other, n_other)
                 row_fluid(b) = merge(n_near - n_block, 0, fast_fluid)
                 do m = 1, n_other
                     j = other(m)
@@ -900,6 +887,43 @@ contains
         dv = dv + sum_v
         de = de + sum_e
     end subroutine morris_fluid_pairs
+
+    !> compute_rates' search of one row: of the n listed partners idx of the particle at xi,
+    !> those within the support (x the positions of all particles) appended to near, d_near
+    !> (xi - x_j) and r2_near after n_near; with `fast`, partners that do not move with the
+    !> flow (flows) go to other(1:n_other) instead, in list order. Explicit shapes: the
+    !> positions' stride known to the compiler.
+    subroutine find_row(xi, idx, n, x, flows, fast, support2, near, d_near, r2_near, n_near, &
+            other, n_other)
+        integer, intent(in) :: n, idx(n)
+        real(wp), intent(in) :: xi(3), x(3, *), support2
+        logical, intent(in) :: flows(*), fast
+        integer, intent(inout) :: near(*), n_near
+        real(wp), intent(inout) :: d_near(3, *), r2_near(*)
+        integer, intent(out) :: other(*), n_other
+        integer :: k, j
+        real(wp) :: d(3), r2
+        n_other = 0
+        do k = 1, n
+            j = idx(k)
+            d(1) = xi(1) - x(1, j)
+            d(2) = xi(2) - x(2, j)
+            d(3) = xi(3) - x(3, j)
+            r2 = d(1)**2 + d(2)**2 + d(3)**2
+            if (r2 <= 0.0_wp .or. r2 >= support2) cycle
+            if (fast .and. .not. flows(j)) then
+                n_other = n_other + 1
+                other(n_other) = j
+                cycle
+            end if
+            n_near = n_near + 1
+            near(n_near) = j
+            d_near(1, n_near) = d(1)
+            d_near(2, n_near) = d(2)
+            d_near(3, n_near) = d(3)
+            r2_near(n_near) = r2
+        end do
+    end subroutine find_row
 
     !> compute_rates' set-up of a one-level run: what a pair reads of each particle, packed
     !> (state: v, m, p/rho^2, 1/rho), whether it moves with the flow (flows) and shares its
