@@ -11,9 +11,9 @@ module sph_stepper
     use mpi_f08, only: MPI_Wtime
     use sph_kinds, only: wp, i8
     use sph_config, only: config_t, config_parse
-    use sph_mpi_env, only: mpi_env_t, global_sum, global_max, broadcast_text
+    use sph_mpi_env, only: mpi_env_t, global_sum, global_max, broadcast_text, ranks_on_node
     use sph_errors, only: fatal_collective
-    use sph_logger, only: log_info
+    use sph_logger, only: log_info, log_warn
     use sph_particles, only: particles_t, particles_gather, KIND_FLUID, KIND_VIRTUAL, &
         HALO_DENSITY, HALO_MOVE, HALO_TRANSPORT, HALO_GHOST
     use sph_physics, only: physics_t, DENSITY_SUMMATION, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR, &
@@ -30,7 +30,8 @@ module sph_stepper
     use sph_integrator, only: save_step_start, advance, max_step_displacement, verlet_drift, &
         verlet_kick, stage_displacement_bound, verlet_drift_levels, verlet_close_levels, &
         verlet_kick_levels
-    use sph_initial, only: create_lattice_particles
+    use sph_initial, only: create_lattice_particles, lattice_sites_estimate
+    use sph_memory, only: node_memory_bytes
     use sph_particle_file, only: read_initial_particles
     use sph_global_ids, only: id_order, global_max_id
     use sph_reference, only: reference_t
@@ -338,6 +339,7 @@ contains
         character(len=:), allocatable :: errmsg
         character(len=160) :: line
         call setup_common(sim, env, cfg)
+        if (len_trim(cfg%domain%initial_particles) == 0) call check_lattice_size(sim, env)
         if (len_trim(cfg%domain%initial_particles) > 0) then
             ! rows shared evenly over the ranks, then partitioned as on a restart
             call read_initial_particles(env, cfg, sim%phys, sim%solids, &
@@ -374,6 +376,73 @@ contains
         call start_levels(sim, env)
         call log_setup(sim, env)
     end subroutine simulation_setup
+
+    !> Stop before laying a lattice that cannot run (collective). The fluid sites of &domain
+    !> dx (a lower bound of the particles: walls, bodies and finer levels add to them),
+    !> shared evenly over the ranks, must fit a rank's neighbour list, whose default-integer
+    !> entries number about the neighbours within the kernel support per particle, and
+    !> their memory, at least MIN_BYTES a particle (below every peak that bench/run
+    !> measured: 481 and 1,123 bytes in 2D and 3D at 10^6), the node's. More than the node
+    !> has available now but less than all of it: a warning. (A dx a thousand times too
+    !> small used to run until the system killed the process, with no message.)
+    subroutine check_lattice_size(sim, env)
+        type(simulation_t), intent(in) :: sim
+        type(mpi_env_t), intent(in) :: env
+        real(wp), parameter :: PI = acos(-1.0_wp), GB = 1024.0_wp**3
+        real(wp), parameter :: MIN_BYTES(3) = [200.0_wp, 400.0_wp, 900.0_wp]
+        real(wp) :: sites, per_rank, entries, ball, need, total_min, free_min
+        integer(i8) :: total, available
+        integer :: dim, on_node
+        character(len=400) :: head, text
+        dim = sim%cfg%domain%dimension
+        sites = lattice_sites_estimate(sim%cfg)
+        per_rank = sites / real(env%nranks, wp)
+        ! the neighbours within the support: the volume of its ball in spacings
+        ball = sim%phys%kernel%support / sim%cfg%domain%dx
+        select case (dim)
+        case (1)
+            entries = 2.0_wp * ball
+        case (2)
+            entries = PI * ball**2
+        case default
+            entries = 4.0_wp / 3.0_wp * PI * ball**3
+        end select
+        entries = per_rank * max(entries, 1.0_wp)
+        write(head, '(a,i0,a)') '&domain dx = ' // sci(sim%cfg%domain%dx) // &
+            ' m lays about ' // sci(sites) // ' fluid particles in the box, ' // &
+            sci(per_rank) // ' per rank on ', env%nranks, ' rank(s)'
+        if (entries > real(huge(0), wp)) call fatal_collective('set-up', trim(head) // &
+            ': more than a rank can hold (its neighbour list would have about ' // &
+            sci(entries) // ' entries, at most 2^31 - 1); choose a larger dx or run on ' // &
+            'more ranks')
+        on_node = ranks_on_node(env)
+        call node_memory_bytes(total, available)
+        need = global_max(env, per_rank * real(on_node, wp) * MIN_BYTES(dim))
+        ! the smallest node's (unknown: no limit)
+        total_min = -global_max(env, -merge(real(total, wp), huge(1.0_wp), total > 0))
+        free_min = -global_max(env, -merge(real(available, wp), huge(1.0_wp), available > 0))
+        if (need > total_min) then
+            write(text, '(a,f0.1,a,i0,a,f0.1,a)') trim(head) // ': they need at least ', &
+                need / GB, ' GB on a node (', nint(MIN_BYTES(dim)), ' bytes a particle or more), ' // &
+                'and a node has ', total_min / GB, ' GB of memory; choose a larger dx or ' // &
+                'run on more nodes'
+            call fatal_collective('set-up', trim(text))
+        else if (need > free_min) then
+            write(text, '(a,f0.1,a,f0.1,a)') 'set-up: ' // trim(head) // &
+                ': they need at least ', need / GB, ' GB on a node, more than the ', &
+                free_min / GB, ' GB available now; the system may stop the run'
+            call log_warn(trim(text))
+        end if
+    contains
+        !> x in scientific notation, two decimals, no padding.
+        function sci(x) result(t)
+            real(wp), intent(in) :: x
+            character(len=:), allocatable :: t
+            character(len=16) :: buffer
+            write(buffer, '(es10.2)') x
+            t = trim(adjustl(buffer))
+        end function sci
+    end subroutine check_lattice_size
 
     !> Multi-resolution bookkeeping at the start of a run or restart: the next unused id and
     !> each level's real mass, the reference of the mass drift in the log (collective).

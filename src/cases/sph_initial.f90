@@ -16,7 +16,7 @@ module sph_initial
     use sph_eos, only: eos_pressure
     implicit none
     private
-    public :: create_lattice_particles
+    public :: create_lattice_particles, lattice_sites_estimate
 
     !> Which lattice sites a caller wants (create_lattice_particles' optional filter): the
     !> others are never made, so a lattice over the whole box costs memory only for what is
@@ -37,6 +37,19 @@ module sph_initial
     end interface
 
 contains
+
+    !> About how many fluid particles the lattice of &domain dx lays in the box (its sites;
+    !> walls and bodies not counted): in real arithmetic, so that a dx far too small for the
+    !> box gives a figure to check instead of an integer overflow.
+    pure real(wp) function lattice_sites_estimate(cfg) result(sites)
+        type(config_t), intent(in) :: cfg
+        integer :: axis
+        sites = 1.0_wp
+        do axis = 1, cfg%domain%dimension
+            sites = sites * max(1.0_wp, anint((cfg%domain%box_hi(axis) - &
+                cfg%domain%box_lo(axis)) / cfg%domain%dx))
+        end do
+    end function lattice_sites_estimate
 
     !> The initial particles: this rank's share of the fluid lattice (bodies and walls left
     !> out) and the wall particles of every solid, with masses rho0 dx^dim and ids by site.

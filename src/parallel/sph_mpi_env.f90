@@ -8,7 +8,7 @@ module sph_mpi_env
     private
     public :: mpi_env_t, mpi_env_init_world, mpi_env_from_comm, mpi_env_free, mpi_env_split
     public :: global_sum, global_max, global_min, broadcast_text, exclusive_scan_i8
-    public :: mpi_wp, mpi_i8, agreed_status
+    public :: mpi_wp, mpi_i8, agreed_status, ranks_on_node
 
     type(MPI_Datatype), parameter :: mpi_wp = MPI_DOUBLE_PRECISION  !< matches sph_kinds%wp
     type(MPI_Datatype), parameter :: mpi_i8 = MPI_INTEGER8          !< matches sph_kinds%i8
@@ -89,6 +89,21 @@ contains
         call MPI_Comm_size(env%comm, env%nranks, ierr)
         call check_mpi(ierr, 'mpi_env size')
     end subroutine fill_rank
+
+    !> How many ranks of env share this rank's node (its shared-memory domain): the ranks
+    !> among which the node's memory is divided (collective).
+    integer function ranks_on_node(env) result(n)
+        type(mpi_env_t), intent(in) :: env
+        type(MPI_Comm) :: node
+        integer :: ierr
+        call MPI_Comm_split_type(env%comm, MPI_COMM_TYPE_SHARED, env%rank, MPI_INFO_NULL, &
+            node, ierr)
+        call check_mpi(ierr, 'ranks_on_node split')
+        call MPI_Comm_size(node, n, ierr)
+        call check_mpi(ierr, 'ranks_on_node size')
+        call MPI_Comm_free(node, ierr)
+        call check_mpi(ierr, 'ranks_on_node free')
+    end function ranks_on_node
 
     !> Free the communicator if the environment owns it (a split), not MPI_COMM_WORLD.
     subroutine mpi_env_free(env)
