@@ -9,6 +9,10 @@ module sph_run_input
     public :: run_input_t, output_input_t, read_run_input, read_output_input
 
     integer, parameter :: name_len = 32, path_len = 512, max_output_times = 256
+    !> snapshots that &output output_interval may ask for up to t_end: a typo in its
+    !> exponent (1.0e-9 for 1.0e-2) wrote a snapshot at every step, each step cut short to
+    !> land on the next one, over a thousand files in 15 s
+    real(wp), parameter :: max_interval_snapshots = 1.0e5_wp
 
     type :: run_input_t
         character(len=name_len) :: case_name
@@ -73,6 +77,16 @@ contains
         end if
         call grp%get_real('output_interval', out%output_interval, 0.0_wp, min=0.0_wp, &
             unit='s', doc='simulated time between snapshots; 0 = first, last and listed only')
+        if (out%output_interval > 0.0_wp) then
+            if (t_end / out%output_interval > max_interval_snapshots) then
+                write(t_text, '(es10.3)') t_end
+                write(n_text, '(es10.2)') t_end / out%output_interval
+                call grp%error('output_interval', 'asks for about ' // &
+                    trim(adjustl(n_text)) // ' snapshots up to t_end = ' // &
+                    trim(adjustl(t_text)) // ' s; at most 100000 a run (a longer interval, ' // &
+                    'or the times listed in output_times)')
+            end if
+        end if
         call grp%get_real_list('output_times', out%output_times, max_output_times, &
             min=0.0_wp, unit='s', doc='times at which a snapshot is written exactly')
         out%note = ''
