@@ -423,9 +423,9 @@ contains
         free_min = -global_max(env, -merge(real(available, wp), huge(1.0_wp), available > 0))
         if (need > total_min) then
             write(text, '(a,f0.1,a,i0,a,f0.1,a)') trim(head) // ': they need at least ', &
-                need / GB, ' GB on a node (', nint(MIN_BYTES(dim)), ' bytes a particle or more), ' // &
-                'and a node has ', total_min / GB, ' GB of memory; choose a larger dx or ' // &
-                'run on more nodes'
+                need / GB, ' GB on a node (', nint(MIN_BYTES(dim)), &
+                ' bytes a particle or more), and a node has ', total_min / GB, &
+                ' GB of memory; choose a larger dx or run on more nodes'
             call fatal_collective('set-up', trim(text))
         else if (need > free_min) then
             write(text, '(a,f0.1,a,f0.1,a)') 'set-up: ' // trim(head) // &
