@@ -12,6 +12,8 @@
 !> are bit-identical to a namelist read), checks type and range, collects every error, and
 !> appends the resolved value, round-trip exact, to the group's resolved text.
 module sph_namelist
+    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite, ieee_overflow, &
+        ieee_get_halting_mode, ieee_set_halting_mode, ieee_set_flag
     use sph_kinds, only: wp
     implicit none
     private
@@ -803,6 +805,7 @@ contains
         integer, allocatable :: order(:)
         integer :: k, ios
         real(wp) :: x
+        logical :: halting
         order = self%element_order(item, shp)
         if (size(order) == 0) return
         if (size(item%values) > size(order)) then
@@ -817,9 +820,21 @@ contains
                     call self%error(item%key, "'" // v%text // "' is not a real number")
                     cycle
                 end if
+                ! a value beyond huge() reads as Infinity and raises the overflow flag, which
+                ! Debug builds trap: not halted for the read, refused below
+                call ieee_get_halting_mode(ieee_overflow, halting)
+                call ieee_set_halting_mode(ieee_overflow, .false.)
                 read(v%text, *, iostat=ios) x
+                call ieee_set_flag(ieee_overflow, .false.)
+                call ieee_set_halting_mode(ieee_overflow, halting)
                 if (ios /= 0) then
                     call self%error(item%key, "'" // v%text // "' is not a real number")
+                    cycle
+                end if
+                ! NaN, Infinity and overflowing values (1e400 reads as Infinity) would pass
+                ! range checks that compare false and break the code that prints them
+                if (.not. ieee_is_finite(x)) then
+                    call self%error(item%key, "'" // v%text // "' is not a finite number")
                     cycle
                 end if
                 var(order(k)) = x
