@@ -4,6 +4,7 @@
 module sph_run_input
     use sph_kinds, only: wp
     use sph_namelist, only: nml_group_t
+    use sph_filesystem, only: MAX_FILE_PATH
     implicit none
     private
     public :: run_input_t, output_input_t, read_run_input, read_output_input
@@ -59,9 +60,10 @@ contains
     !> &output; the listed times must lie in [0, t_end] and increase. Entries past t_end (a
     !> shortened run) are skipped with a note in out%note, not refused. The output folder must
     !> be creatable: its nearest existing ancestor must be a directory (nothing is made here).
-    subroutine read_output_input(grp, t_end, out)
+    subroutine read_output_input(grp, t_end, case_name, out)
         type(nml_group_t), intent(inout) :: grp
         real(wp), intent(in) :: t_end
+        character(len=*), intent(in) :: case_name   !< &run case_name (in the file names)
         type(output_input_t), intent(out) :: out
         integer :: k, n_kept
         character(len=:), allocatable :: problem
@@ -74,6 +76,15 @@ contains
             call check_creatable(trim(out%output_dir), problem)
             if (len(problem) > 0) call grp%error('output_dir', "'" // &
                 trim(out%output_dir) // "' cannot be created: " // problem)
+            ! the longest file in it: DIR/CASE_checkpoint_<up to 9 digits>.h5.tmp
+            k = len_trim(out%output_dir) + len_trim(case_name) + len('/_checkpoint_.h5.tmp') + 9
+            if (k > MAX_FILE_PATH) then
+                write(n_text, '(i0)') k
+                write(t_text, '(i0)') MAX_FILE_PATH
+                call grp%error('output_dir', 'with &run case_name its checkpoints'' paths ' // &
+                    'would be up to ' // trim(n_text) // ' characters long; HDF5 over MPI-IO ' // &
+                    'takes at most ' // trim(t_text) // ' (a shorter folder, or a symbolic link)')
+            end if
         end if
         call grp%get_real('output_interval', out%output_interval, 0.0_wp, min=0.0_wp, &
             unit='s', doc='simulated time between snapshots; 0 = first, last and listed only')
@@ -112,9 +123,22 @@ contains
     subroutine check_creatable(path, problem)
         character(len=*), intent(in) :: path
         character(len=:), allocatable, intent(out) :: problem
-        integer :: k
+        !> the longest name of one component (the file systems' NAME_MAX)
+        integer, parameter :: NAME_MAX = 255
+        integer :: k, start
         logical :: is_dir, exists
         problem = ''
+        start = 1
+        do k = 1, len(path) + 1
+            if (k <= len(path)) then
+                if (path(k:k) /= '/') cycle
+            end if
+            if (k - start > NAME_MAX) then
+                problem = 'a name in it is longer than 255 characters'
+                return
+            end if
+            start = k + 1
+        end do
         do k = 2, len(path) + 1
             if (k <= len(path)) then
                 if (path(k:k) /= '/') cycle

@@ -534,10 +534,10 @@ contains
         call simulation_prepare_neighbours(sim, env)
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
         call start_levels(sim, env)
-        write(line, '(a,es12.5,a,i0,a)') 'continuing from ' // path // ' at t = ', sim%time, &
-            ' s, step ', sim%step, merge(' (same decomposition)      ', &
-                                         ' (decomposition rebuilt)   ', same_layout)
-        call log_info(trim(line))
+        ! (the path first, apart: a line of fixed length cannot hold every path)
+        write(line, '(a,es12.5,a,i0,a)') ' at t = ', sim%time, ' s, step ', sim%step, &
+            merge(' (same decomposition)      ', ' (decomposition rebuilt)   ', same_layout)
+        call log_info('continuing from ' // path // trim(line))
         if (stored_input /= sim%input_text) call log_info('restart: the input differs from ' // &
             'the one stored in the checkpoint; the new input is used')
         call log_setup(sim, env)

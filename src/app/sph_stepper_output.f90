@@ -253,7 +253,7 @@ contains
     end procedure simulation_analytic_error
 
     module procedure simulation_write_snapshot
-        character(len=:), allocatable :: path, errmsg, xdmf_path
+        character(len=:), allocatable :: path, errmsg, xdmf_path, message
         integer :: stat, k
         integer(i8) :: rows
         real(wp) :: error
@@ -275,13 +275,15 @@ contains
         if (env%rank == 0) call write_xdmf(xdmf_path, sim%snapshot_index, stat)
         if (global_max(env, int(stat, i8)) /= 0) &
             call fatal_collective('output', "cannot write '" // xdmf_path // "'")
-        write(line, '(a,es12.5,a)') 'snapshot t = ', sim%time, ' s: ' // path
+        ! (the path in a string of its own length: a fixed line cut long paths short)
+        write(line, '(es12.5)') sim%time
+        message = 'snapshot t = ' // trim(line) // ' s: ' // path
         if (trim(sim%ref%name) /= 'none' .and. sim%time > 0.0_wp) then
             error = simulation_analytic_error(sim, env)
-            write(line, '(a,a,f8.4,a)') trim(line), ' (L2 error vs analytic ', 100.0_wp * error, &
-                ' %)'
+            write(line, '(f8.4)') 100.0_wp * error
+            message = message // ' (L2 error vs analytic ' // trim(line) // ' %)'
         end if
-        call log_info(trim(line))
+        call log_info(message)
     end procedure simulation_write_snapshot
 
     !> Snapshots hold the virtual particles of transition zones only when asked

@@ -145,7 +145,7 @@ contains
         type(nml_group_t), intent(inout) :: grp(:), bodies(:), regions(:)
         type(config_t), intent(inout) :: cfg
         call read_run_input(grp(1), cfg%run)
-        call read_output_input(grp(2), cfg%run%t_end, cfg%output)
+        call read_output_input(grp(2), cfg%run%t_end, cfg%run%case_name, cfg%output)
         call read_domain_input(grp(3), cfg%domain)
         call read_fluid_input(grp(4), cfg%fluid)
         call read_numerics_input(grp(5), cfg%numerics)

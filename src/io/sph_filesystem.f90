@@ -6,6 +6,12 @@ module sph_filesystem
     implicit none
     private
     public :: make_directories, rename_file, delete_file, list_directory
+    public :: MAX_FILE_PATH
+
+    !> The longest file path handed to HDF5 over MPI-IO: Open MPI's I/O component (4.1)
+    !> builds names in a fixed buffer and aborts the process beyond about 243 characters
+    !> ("buffer overflow detected", measured with output folders of 200-225 characters).
+    integer, parameter :: MAX_FILE_PATH = 240
 
     interface
         integer(c_int) function c_mkdir(path, mode) bind(C, name="mkdir")

@@ -35,6 +35,8 @@ module sph_hdf5
     use sph_kinds, only: wp, i4, i8
     use sph_errors, only: fatal_abort
     use sph_mpi_env, only: mpi_env_t, global_sum, exclusive_scan_i8
+    use sph_filesystem, only: MAX_FILE_PATH
+    use sph_logger, only: int_text
     implicit none
     private
     public :: h5_file_t, h5_create, h5_open_read, h5_close, check_h5
@@ -181,8 +183,24 @@ contains
         character(len=:), allocatable, intent(out) :: message
         integer(hid_t) :: fapl
         integer :: ierr, status
+        logical :: is_directory
         stat = 0
         message = ''
+        ! refused here, before the library aborts the process on a long name or prints a
+        ! page of read errors for a directory
+        if (len(path) > MAX_FILE_PATH) then
+            stat = 1
+            message = "the path '" // path // "' is " // int_text(int(len(path), i8)) // &
+                ' characters long: HDF5 over MPI-IO takes at most ' // &
+                int_text(int(MAX_FILE_PATH, i8)) // ' (a shorter folder, or a symbolic link)'
+            return
+        end if
+        inquire(file=path // '/.', exist=is_directory)
+        if (is_directory) then
+            stat = 1
+            message = "'" // path // "' is a directory, not an HDF5 file"
+            return
+        end if
         call library_acquire()
         call h5pcreate_f(H5P_FILE_ACCESS_F, fapl, ierr)
         call check_h5(ierr, 'sph_hdf5: h5pcreate_f (file access)')
