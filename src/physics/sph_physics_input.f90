@@ -3,7 +3,7 @@
 !> time-step safety factors). Read by sph_config; turned into physics_t by sph_physics.
 module sph_physics_input
     use sph_kinds, only: wp
-    use sph_namelist, only: nml_group_t
+    use sph_namelist, only: nml_group_t, real_text
     use sph_domain_input, only: domain_input_t
     implicit none
     private
@@ -86,7 +86,13 @@ contains
             choices=[character(len=12) :: 'cubic', 'quintic', 'wendland_c2'], &
             doc='smoothing kernel')
         call grp%get_real('h_factor', num%h_factor, 0.0_wp, min=0.0_wp, &
-            doc='h = h_factor dx; 0 = kernel default')
+            doc='h = h_factor dx; 0 = kernel default, otherwise 0.8 to 4')
+        ! a smaller h leaves a particle without neighbours (1e-3: none, and a time step of
+        ! 1e-9 s from the viscous limit: the run seemed to hang), a larger one costs
+        ! (h_factor)^dim times the pairs for no accuracy
+        if (num%h_factor > 0.0_wp .and. (num%h_factor < 0.8_wp .or. num%h_factor > 4.0_wp)) &
+            call grp%error('h_factor', real_text(num%h_factor) // ' is out of range: ' // &
+                'must be 0 (the kernel''s default) or from 0.8 to 4 (times dx)')
         call grp%get_string('density_method', num%density_method, 'continuity', &
             choices=[character(len=12) :: 'continuity', 'summation'], &
             doc='integrated continuity equation or summation')
