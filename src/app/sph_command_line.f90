@@ -49,7 +49,19 @@ contains
                     return
                 end if
                 i = i + 1
+                if (len(opts%restart_from) > 0) then
+                    stat = 1
+                    errmsg = "--restart given twice ('" // opts%restart_from // "' and '" // &
+                        argument(i) // "')"
+                    return
+                end if
                 opts%restart_from = argument(i)
+                if (len_trim(opts%restart_from) == 0) then
+                    stat = 1
+                    errmsg = '--restart needs a checkpoint file or a directory of ' // &
+                        'checkpoints, not an empty argument'
+                    return
+                end if
             case ('--remesh')
                 if (i + 3 > n) then
                     stat = 1
@@ -57,10 +69,20 @@ contains
                         'snapshot or checkpoint and an output checkpoint'
                     return
                 end if
+                if (len(opts%remesh_mode) > 0) then
+                    stat = 1
+                    errmsg = '--remesh given twice'
+                    return
+                end if
                 opts%remesh_mode = argument(i + 1)
                 opts%remesh_in = argument(i + 2)
                 opts%remesh_out = argument(i + 3)
                 i = i + 3
+                if (len_trim(opts%remesh_in) == 0 .or. len_trim(opts%remesh_out) == 0) then
+                    stat = 1
+                    errmsg = '--remesh: IN and OUT must be file names, not empty arguments'
+                    return
+                end if
                 if (all(opts%remesh_mode /= [character(len=7) :: 'refine', 'coarsen', 'same'])) &
                     then
                     stat = 1
@@ -84,6 +106,20 @@ contains
             end select
             i = i + 1
         end do
+        ! each option belongs to one way of running (sphremesh --help): a combination would
+        ! leave one of them silently unused
+        if (len(opts%remesh_mode) > 0 .and. (opts%check_only .or. &
+            len(opts%restart_from) > 0)) then
+            stat = 1
+            errmsg = '--remesh takes neither --check nor --restart (it writes a checkpoint; ' // &
+                'continue from it with a second command, sphremesh INPUT.nml --restart OUT)'
+            return
+        end if
+        if (opts%check_only .and. len(opts%restart_from) > 0) then
+            stat = 1
+            errmsg = '--check sets up a fresh run and takes no --restart'
+            return
+        end if
         if (len(opts%remesh_mode) > 0 .and. len(opts%input_file) > 0) then
             stat = 1
             errmsg = '--remesh takes no input file (it uses the input stored in ' // &
@@ -137,7 +173,8 @@ contains
             '                     continue with --restart OUT and &domain dx = the new dx' // &
             nl // nl // &
             'namelist groups: &run &output &domain &fluid &numerics &parallel &restart' // nl // &
-            '                 &health &remesh &body (see doc/input.md)' // nl // &
+            '                 &health &remesh &body &refinement &region (see doc/input.md)' // &
+            nl // &
             'example: mpirun -np 2 sphremesh input/poiseuille.nml'
     end function usage_text
 end module sph_command_line
