@@ -13,7 +13,7 @@ module sph_stepper
     use sph_config, only: config_t, config_parse
     use sph_mpi_env, only: mpi_env_t, global_sum, global_max, broadcast_text, ranks_on_node
     use sph_errors, only: fatal_collective
-    use sph_logger, only: log_info, log_warn
+    use sph_logger, only: log_info, log_warn, int_text
     use sph_particles, only: particles_t, particles_gather, KIND_FLUID, KIND_VIRTUAL, &
         HALO_DENSITY, HALO_MOVE, HALO_TRANSPORT, HALO_GHOST
     use sph_physics, only: physics_t, DENSITY_SUMMATION, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR, &
@@ -474,6 +474,7 @@ contains
         type(config_t), intent(in) :: cfg
         character(len=*), intent(in) :: from
         character(len=:), allocatable :: path, skipped, errmsg, stored_input, index_text
+        character(len=:), allocatable :: mismatch
         integer :: stat
         logical :: same_layout, is_directory
         character(len=256) :: line
@@ -514,6 +515,9 @@ contains
             sim%level_push_mass(:) = balance(2 + 3 * n:)
         end if
         sim%rates_stale = .not. verlet_input(stored_input)
+        ! the particles (walls and bodies included) were laid for the stored geometry
+        mismatch = geometry_mismatch(stored_input, cfg)
+        if (len(mismatch) > 0) call fatal_collective('restart', mismatch)
         ! a remeshed (refined or coarsened) checkpoint holds particles of another spacing:
         ! the input must say so (kernel, masses of new walls, time step follow from dx)
         if (stored_dx > 0.0_wp .and. abs(stored_dx - cfg%domain%dx) > 1.0e-9_wp * stored_dx) then
@@ -542,6 +546,70 @@ contains
             'the one stored in the checkpoint; the new input is used')
         call log_setup(sim, env)
     end subroutine simulation_restart
+
+    !> How the geometry of the input stored in a checkpoint differs from `cfg`'s ('' if it
+    !> does not): the dimension, the box, the kind of every face and the &body groups.
+    !> The checkpoint holds the wall and body particles laid for its own geometry, so a
+    !> restart with another would run in a box half empty, without the walls its faces now
+    !> ask for, or with fluid inside a new body (each of these ran before, to a health
+    !> failure or to a wrong flow with exit status 0).
+    function geometry_mismatch(stored_input, cfg) result(text)
+        character(len=*), intent(in) :: stored_input
+        type(config_t), intent(in) :: cfg
+        character(len=:), allocatable :: text
+        type(config_t) :: stored
+        integer :: stat, dim, k
+        character(len=:), allocatable :: errmsg
+        real(wp) :: scale
+        character(len=*), parameter :: TAIL = ' (continue with the checkpoint''s ' // &
+            'geometry: its input is stored in it)'
+        text = ''
+        call config_parse(stored, stored_input, 'checkpoint input', stat, errmsg)
+        if (stat /= 0) return
+        dim = cfg%domain%dimension
+        if (stored%domain%dimension /= dim) then
+            text = "the checkpoint is of a run in dimension " // &
+                trim(int_text(int(stored%domain%dimension, i8))) // &
+                ' but &domain dimension = ' // trim(int_text(int(dim, i8))) // TAIL
+            return
+        end if
+        scale = maxval(cfg%domain%box_hi(1:dim) - cfg%domain%box_lo(1:dim))
+        if (any(abs(stored%domain%box_lo(1:dim) - cfg%domain%box_lo(1:dim)) > &
+            1.0e-12_wp * scale) .or. any(abs(stored%domain%box_hi(1:dim) - &
+            cfg%domain%box_hi(1:dim)) > 1.0e-12_wp * scale)) then
+            text = "the checkpoint's box differs from &domain box_lo / box_hi" // TAIL
+            return
+        end if
+        do k = 1, 2 * dim
+            if (trim(stored%domain%boundary(k)) /= trim(cfg%domain%boundary(k))) then
+                text = "the checkpoint's face " // trim(int_text(int(k, i8))) // " is '" // &
+                    trim(stored%domain%boundary(k)) // "' but &domain boundary(" // &
+                    trim(int_text(int(k, i8))) // ") = '" // trim(cfg%domain%boundary(k)) // &
+                    "'" // TAIL
+                return
+            end if
+        end do
+        if (size(stored%bodies) /= size(cfg%bodies)) then
+            text = 'the checkpoint has ' // trim(int_text(int(size(stored%bodies), i8))) // &
+                ' &body group(s) but the input ' // trim(int_text(int(size(cfg%bodies), i8))) &
+                // TAIL
+            return
+        end if
+        do k = 1, size(cfg%bodies)
+            associate (a => stored%bodies(k), b => cfg%bodies(k))
+                if (trim(a%shape) /= trim(b%shape) .or. a%axis /= b%axis .or. &
+                    any(abs(a%centre - b%centre) > 1.0e-12_wp * scale) .or. &
+                    abs(a%radius - b%radius) > 1.0e-12_wp * scale .or. &
+                    any(abs(a%lo - b%lo) > 1.0e-12_wp * scale) .or. &
+                    any(abs(a%hi - b%hi) > 1.0e-12_wp * scale)) then
+                    text = "the checkpoint's &body " // trim(int_text(int(k, i8))) // &
+                        " ('" // trim(a%name) // "') differs from the input's in shape, " // &
+                        'place or size' // TAIL
+                    return
+                end if
+            end associate
+        end do
+    end function geometry_mismatch
 
     !> Was a checkpoint written by a run with &numerics integrator = 'verlet' (its stored
     !> input says so)? Its rates are then those the next step starts from, and a verlet run

@@ -86,4 +86,19 @@ if run "$np" "$coarse" --restart refined.h5 > wrong.log 2>&1; then
 fi
 grep -q "the checkpoint's particles have spacing dx" wrong.log || \
     fail "no dx message:" wrong.log
+# nor an input of another geometry (a wider box, x faces made walls): the checkpoint holds
+# the particles laid for its own (such restarts ran on, half empty or without the walls)
+sed 's/^    box_hi = 0.5e-3, 1.0e-3/    box_hi = 1.0e-3, 1.0e-3/' "$coarse" > wider.nml
+if run 1 wider.nml --restart "$checkpoint" > wider.log 2>&1; then
+    fail "a restart in a wider box was accepted:" wider.log
+fi
+grep -q "the checkpoint's box differs from &domain box_lo / box_hi" wider.log || \
+    fail "no box message:" wider.log
+sed -e "s/'periodic', 'periodic', 'wall', 'wall'/'wall', 'wall', 'wall', 'wall'/" \
+    -e "s/^ *analytic = .*/    analytic = 'none'/" "$coarse" > walled.nml
+if run 1 walled.nml --restart "$checkpoint" > walled.log 2>&1; then
+    fail "a restart with other faces was accepted:" walled.log
+fi
+grep -q "the checkpoint's face 1 is 'periodic' but &domain boundary(1) = 'wall'" walled.log || \
+    fail "no face message:" walled.log
 echo "refined $checkpoint, continued at L/40: $(grep -o 'relative L2 = *[0-9.]* %' fine.log)"
