@@ -4,7 +4,7 @@
 !> translating at a constant velocity. Read by sph_config; turned into solids by sph_walls.
 module sph_body_input
     use sph_kinds, only: wp
-    use sph_namelist, only: nml_group_t
+    use sph_namelist, only: nml_group_t, real_text
     use sph_domain_input, only: domain_input_t
     implicit none
     private
@@ -37,6 +37,11 @@ contains
         do b = 1, size(grps)
             grps(b)%instance = b
             call read_body(grps(b), dom, bodies(b))
+            ! forces, logs and &region body name a body: one name, one body
+            if (b > 1) then
+                if (any(bodies(1:b - 1)%name == bodies(b)%name)) call grps(b)%error('name', &
+                    "'" // trim(bodies(b)%name) // "' names an earlier &body too")
+            end if
         end do
     end subroutine read_body_inputs
 
@@ -81,6 +86,13 @@ contains
         if (round) then
             if (.not. (body%radius > 0.0_wp)) then
                 call grp%error('radius', 'must be > 0 (m) for a ' // trim(body%shape))
+                return
+            end if
+            ! smaller, no lattice site falls inside: a body with no particles and no force
+            if (body%radius < 0.5_wp * dom%dx) then
+                call grp%error('radius', real_text(body%radius) // ' m is below half the ' // &
+                    'spacing (&domain dx = ' // real_text(dom%dx) // ' m): the ' // &
+                    trim(body%shape) // ' would hold no particle')
                 return
             end if
             lo = body%centre - body%radius

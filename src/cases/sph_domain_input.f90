@@ -100,6 +100,13 @@ contains
                 call grp%error('boundary(' // trim(face_names(2*axis - 1)) // ', ' // &
                     trim(face_names(2*axis)) // ')', &
                     'both faces of an axis are periodic or neither is')
+            ! a velocity given to a face without a wall moves nothing
+            if (dom%boundary(2*axis - 1) == 'periodic') then
+                if (any(dom%wall_velocity(:, 2*axis - 1:2*axis) /= 0.0_wp)) &
+                    call grp%error('wall_velocity(:, ' // trim(face_names(2*axis - 1)) // &
+                        ', ' // trim(face_names(2*axis)) // ')', 'given for periodic ' // &
+                        'faces, which have no wall particles to move')
+            end if
             if (dom%dx > 0.0_wp) then
                 if (.not. spacing_fits_axis(dom, dom%dx, axis)) &
                     call grp%error('dx', 'box length on axis ' // axis_text // &

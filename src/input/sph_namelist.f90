@@ -750,6 +750,10 @@ contains
         if (i /= 0) then
             order = self%element_order(self%items(i), [size(var)])
             n = min(size(order), size(self%items(i)%values))
+            ! as convert_reals: values beyond the elements are an error, not dropped
+            if (size(order) > 0 .and. size(self%items(i)%values) > size(order)) &
+                call self%error(key, itoa(size(self%items(i)%values)) // ' values for ' // &
+                    itoa(size(order)) // ' element(s)')
             do k = 1, n
                 associate (v => self%items(i)%values(k))
                     if (v%null) cycle

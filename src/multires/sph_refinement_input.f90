@@ -142,6 +142,16 @@ contains
                         ') = ' // real_text(reg%hi(a)) // ' (the corners of a box region)')
                     cycle
                 end if
+                ! wholly outside the box along an axis of walls, the region would hold no
+                ! particle of its level (along a periodic axis its nearest image is taken)
+                if (.not. dom%is_periodic(a) .and. .not. (reg%hi(a) > dom%box_lo(a) .and. &
+                    reg%lo(a) < dom%box_hi(a))) then
+                    call grp%error('lo(' // int_text(int(a, i8)) // ')', 'the region (' // &
+                        real_text(reg%lo(a)) // ' to ' // real_text(reg%hi(a)) // &
+                        ' m on axis ' // int_text(int(a, i8)) // ') lies outside the box (' // &
+                        real_text(dom%box_lo(a)) // ' to ' // real_text(dom%box_hi(a)) // ' m)')
+                    cycle
+                end if
                 if (dom%dx > 0.0_wp) then
                     call check_face(a, 'lo', reg%lo(a), reg%hi(a) - reg%lo(a))
                     call check_face(a, 'hi', reg%hi(a), reg%hi(a) - reg%lo(a))
