@@ -11,9 +11,9 @@ module sph_stepper
     use mpi_f08, only: MPI_Wtime
     use sph_kinds, only: wp, i8
     use sph_config, only: config_t, config_parse
-    use sph_mpi_env, only: mpi_env_t, global_sum, global_max, broadcast_text, ranks_on_node
+    use sph_mpi_env, only: mpi_env_t, global_sum, global_max, broadcast_text
     use sph_errors, only: fatal_collective
-    use sph_logger, only: log_info, log_warn, int_text
+    use sph_logger, only: log_info
     use sph_particles, only: particles_t, particles_gather, KIND_FLUID, KIND_VIRTUAL, &
         HALO_DENSITY, HALO_MOVE, HALO_TRANSPORT, HALO_GHOST
     use sph_physics, only: physics_t, DENSITY_SUMMATION, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR, &
@@ -30,8 +30,7 @@ module sph_stepper
     use sph_integrator, only: save_step_start, advance, max_step_displacement, verlet_drift, &
         verlet_kick, stage_displacement_bound, verlet_drift_levels, verlet_close_levels, &
         verlet_kick_levels
-    use sph_initial, only: create_lattice_particles, lattice_sites_estimate
-    use sph_memory, only: node_memory_bytes
+    use sph_initial, only: create_lattice_particles
     use sph_particle_file, only: read_initial_particles
     use sph_global_ids, only: id_order, global_max_id
     use sph_reference, only: reference_t
@@ -319,6 +318,19 @@ module sph_stepper
             type(mpi_env_t), intent(in) :: env
         end function simulation_neighbours_per_particle
 
+        !> Stop before laying a lattice that cannot run (collective; sph_stepper_checks).
+        module subroutine check_lattice_size(sim, env)
+            type(simulation_t), intent(in) :: sim
+            type(mpi_env_t), intent(in) :: env
+        end subroutine check_lattice_size
+
+        !> How the geometry of a checkpoint's stored input differs from cfg's ('' if it does
+        !> not; sph_stepper_checks).
+        module function geometry_mismatch(stored, cfg) result(text)
+            type(config_t), intent(in) :: stored, cfg
+            character(len=:), allocatable :: text
+        end function geometry_mismatch
+
         !> Smallest and largest fluid density over all ranks (collective).
         module function fluid_density_range(sim, env) result(range)
             type(simulation_t), intent(in) :: sim
@@ -377,73 +389,6 @@ contains
         call log_setup(sim, env)
     end subroutine simulation_setup
 
-    !> Stop before laying a lattice that cannot run (collective). The fluid sites of &domain
-    !> dx (a lower bound of the particles: walls, bodies and finer levels add to them),
-    !> shared evenly over the ranks, must fit a rank's neighbour list, whose default-integer
-    !> entries number about the neighbours within the kernel support per particle, and
-    !> their memory, at least MIN_BYTES a particle (below every peak that bench/run
-    !> measured: 481 and 1,123 bytes in 2D and 3D at 10^6), the node's. More than the node
-    !> has available now but less than all of it: a warning. (A dx a thousand times too
-    !> small used to run until the system killed the process, with no message.)
-    subroutine check_lattice_size(sim, env)
-        type(simulation_t), intent(in) :: sim
-        type(mpi_env_t), intent(in) :: env
-        real(wp), parameter :: PI = acos(-1.0_wp), GB = 1024.0_wp**3
-        real(wp), parameter :: MIN_BYTES(3) = [200.0_wp, 400.0_wp, 900.0_wp]
-        real(wp) :: sites, per_rank, entries, ball, need, total_min, free_min
-        integer(i8) :: total, available
-        integer :: dim, on_node
-        character(len=400) :: head, text
-        dim = sim%cfg%domain%dimension
-        sites = lattice_sites_estimate(sim%cfg)
-        per_rank = sites / real(env%nranks, wp)
-        ! the neighbours within the support: the volume of its ball in spacings
-        ball = sim%phys%kernel%support / sim%cfg%domain%dx
-        select case (dim)
-        case (1)
-            entries = 2.0_wp * ball
-        case (2)
-            entries = PI * ball**2
-        case default
-            entries = 4.0_wp / 3.0_wp * PI * ball**3
-        end select
-        entries = per_rank * max(entries, 1.0_wp)
-        write(head, '(a,i0,a)') '&domain dx = ' // sci(sim%cfg%domain%dx) // &
-            ' m lays about ' // sci(sites) // ' fluid particles in the box, ' // &
-            sci(per_rank) // ' per rank on ', env%nranks, ' rank(s)'
-        if (entries > real(huge(0), wp)) call fatal_collective('set-up', trim(head) // &
-            ': more than a rank can hold (its neighbour list would have about ' // &
-            sci(entries) // ' entries, at most 2^31 - 1); choose a larger dx or run on ' // &
-            'more ranks')
-        on_node = ranks_on_node(env)
-        call node_memory_bytes(total, available)
-        need = global_max(env, per_rank * real(on_node, wp) * MIN_BYTES(dim))
-        ! the smallest node's (unknown: no limit)
-        total_min = -global_max(env, -merge(real(total, wp), huge(1.0_wp), total > 0))
-        free_min = -global_max(env, -merge(real(available, wp), huge(1.0_wp), available > 0))
-        if (need > total_min) then
-            write(text, '(a,f0.1,a,i0,a,f0.1,a)') trim(head) // ': they need at least ', &
-                need / GB, ' GB on a node (', nint(MIN_BYTES(dim)), &
-                ' bytes a particle or more), and a node has ', total_min / GB, &
-                ' GB of memory; choose a larger dx or run on more nodes'
-            call fatal_collective('set-up', trim(text))
-        else if (need > free_min) then
-            write(text, '(a,f0.1,a,f0.1,a)') 'set-up: ' // trim(head) // &
-                ': they need at least ', need / GB, ' GB on a node, more than the ', &
-                free_min / GB, ' GB available now; the system may stop the run'
-            call log_warn(trim(text))
-        end if
-    contains
-        !> x in scientific notation, two decimals, no padding.
-        function sci(x) result(t)
-            real(wp), intent(in) :: x
-            character(len=:), allocatable :: t
-            character(len=16) :: buffer
-            write(buffer, '(es10.2)') x
-            t = trim(adjustl(buffer))
-        end function sci
-    end subroutine check_lattice_size
-
     !> Multi-resolution bookkeeping at the start of a run or restart: the next unused id and
     !> each level's real mass, the reference of the mass drift in the log (collective).
     subroutine start_levels(sim, env)
@@ -475,6 +420,7 @@ contains
         character(len=*), intent(in) :: from
         character(len=:), allocatable :: path, skipped, errmsg, stored_input, index_text
         character(len=:), allocatable :: mismatch
+        type(config_t) :: stored
         integer :: stat
         logical :: same_layout, is_directory
         character(len=256) :: line
@@ -514,10 +460,17 @@ contains
             sim%level_push(:, :) = reshape(balance(2:1 + 3 * n), [3, n])
             sim%level_push_mass(:) = balance(2 + 3 * n:)
         end if
-        sim%rates_stale = .not. verlet_input(stored_input)
-        ! the particles (walls and bodies included) were laid for the stored geometry
-        mismatch = geometry_mismatch(stored_input, cfg)
-        if (len(mismatch) > 0) call fatal_collective('restart', mismatch)
+        ! the input the checkpoint was written with: a Verlet run's rates are those its next
+        ! step starts from (a verlet continuation takes them, bit for bit; any other
+        ! checkpoint's are evaluated again), and its particles (walls and bodies included)
+        ! were laid for its geometry
+        call config_parse(stored, stored_input, 'checkpoint input', stat, errmsg)
+        sim%rates_stale = .true.
+        if (stat == 0) then
+            sim%rates_stale = trim(stored%numerics%integrator) /= 'verlet'
+            mismatch = geometry_mismatch(stored, cfg)
+            if (len(mismatch) > 0) call fatal_collective('restart', mismatch)
+        end if
         ! a remeshed (refined or coarsened) checkpoint holds particles of another spacing:
         ! the input must say so (kernel, masses of new walls, time step follow from dx)
         if (stored_dx > 0.0_wp .and. abs(stored_dx - cfg%domain%dx) > 1.0e-9_wp * stored_dx) then
@@ -546,83 +499,6 @@ contains
             'the one stored in the checkpoint; the new input is used')
         call log_setup(sim, env)
     end subroutine simulation_restart
-
-    !> How the geometry of the input stored in a checkpoint differs from `cfg`'s ('' if it
-    !> does not): the dimension, the box, the kind of every face and the &body groups.
-    !> The checkpoint holds the wall and body particles laid for its own geometry, so a
-    !> restart with another would run in a box half empty, without the walls its faces now
-    !> ask for, or with fluid inside a new body (each of these ran before, to a health
-    !> failure or to a wrong flow with exit status 0).
-    function geometry_mismatch(stored_input, cfg) result(text)
-        character(len=*), intent(in) :: stored_input
-        type(config_t), intent(in) :: cfg
-        character(len=:), allocatable :: text
-        type(config_t) :: stored
-        integer :: stat, dim, k
-        character(len=:), allocatable :: errmsg
-        real(wp) :: scale
-        character(len=*), parameter :: TAIL = ' (continue with the checkpoint''s ' // &
-            'geometry: its input is stored in it)'
-        text = ''
-        call config_parse(stored, stored_input, 'checkpoint input', stat, errmsg)
-        if (stat /= 0) return
-        dim = cfg%domain%dimension
-        if (stored%domain%dimension /= dim) then
-            text = "the checkpoint is of a run in dimension " // &
-                trim(int_text(int(stored%domain%dimension, i8))) // &
-                ' but &domain dimension = ' // trim(int_text(int(dim, i8))) // TAIL
-            return
-        end if
-        scale = maxval(cfg%domain%box_hi(1:dim) - cfg%domain%box_lo(1:dim))
-        if (any(abs(stored%domain%box_lo(1:dim) - cfg%domain%box_lo(1:dim)) > &
-            1.0e-12_wp * scale) .or. any(abs(stored%domain%box_hi(1:dim) - &
-            cfg%domain%box_hi(1:dim)) > 1.0e-12_wp * scale)) then
-            text = "the checkpoint's box differs from &domain box_lo / box_hi" // TAIL
-            return
-        end if
-        do k = 1, 2 * dim
-            if (trim(stored%domain%boundary(k)) /= trim(cfg%domain%boundary(k))) then
-                text = "the checkpoint's face " // trim(int_text(int(k, i8))) // " is '" // &
-                    trim(stored%domain%boundary(k)) // "' but &domain boundary(" // &
-                    trim(int_text(int(k, i8))) // ") = '" // trim(cfg%domain%boundary(k)) // &
-                    "'" // TAIL
-                return
-            end if
-        end do
-        if (size(stored%bodies) /= size(cfg%bodies)) then
-            text = 'the checkpoint has ' // trim(int_text(int(size(stored%bodies), i8))) // &
-                ' &body group(s) but the input ' // trim(int_text(int(size(cfg%bodies), i8))) &
-                // TAIL
-            return
-        end if
-        do k = 1, size(cfg%bodies)
-            associate (a => stored%bodies(k), b => cfg%bodies(k))
-                if (trim(a%shape) /= trim(b%shape) .or. a%axis /= b%axis .or. &
-                    any(abs(a%centre - b%centre) > 1.0e-12_wp * scale) .or. &
-                    abs(a%radius - b%radius) > 1.0e-12_wp * scale .or. &
-                    any(abs(a%lo - b%lo) > 1.0e-12_wp * scale) .or. &
-                    any(abs(a%hi - b%hi) > 1.0e-12_wp * scale)) then
-                    text = "the checkpoint's &body " // trim(int_text(int(k, i8))) // &
-                        " ('" // trim(a%name) // "') differs from the input's in shape, " // &
-                        'place or size' // TAIL
-                    return
-                end if
-            end associate
-        end do
-    end function geometry_mismatch
-
-    !> Was a checkpoint written by a run with &numerics integrator = 'verlet' (its stored
-    !> input says so)? Its rates are then those the next step starts from, and a verlet run
-    !> continues with them bit for bit; any other checkpoint's rates are evaluated again.
-    logical function verlet_input(stored_input)
-        character(len=*), intent(in) :: stored_input
-        type(config_t) :: stored
-        integer :: stat
-        character(len=:), allocatable :: errmsg
-        call config_parse(stored, stored_input, 'checkpoint input', stat, errmsg)
-        verlet_input = stat == 0
-        if (verlet_input) verlet_input = trim(stored%numerics%integrator) == 'verlet'
-    end function verlet_input
 
     !> A checkpoint of a uniform run continued with &region groups: the regions are refined
     !> (sph_transition_driver refine_uniform_state) and the decomposition rebalanced.
