@@ -178,6 +178,7 @@ contains
             character(len=*), intent(in) :: token
             logical, intent(in) :: is_quoted
             integer, intent(in) :: at_line
+            integer, parameter :: MAX_REPEAT = 100000
             integer :: star, count, ios, k
             character(len=:), allocatable :: rest
             star = 0
@@ -188,11 +189,16 @@ contains
                     call fail(at_line, "bad repeat count in '" // token // "'")
                     return
                 end if
+                ! no key takes more values than this; a larger count is a typo
+                if (count > MAX_REPEAT) then
+                    call fail(at_line, "repeat count in '" // token // "' above " // &
+                        itoa(MAX_REPEAT) // ' (more values than any key takes)')
+                    return
+                end if
                 rest = token(star + 1:)
-                do k = 1, count
-                    values = [values, nml_value_t(text=rest, quoted=repeat_quoted, &
-                        null=len(rest) == 0 .and. .not. repeat_quoted)]
-                end do
+                ! appended at once (appended one by one, 20000* took 9 s)
+                values = [values, (nml_value_t(text=rest, quoted=repeat_quoted, &
+                    null=len(rest) == 0 .and. .not. repeat_quoted), k = 1, count)]
             else
                 values = [values, nml_value_t(text=token, quoted=is_quoted)]
             end if
