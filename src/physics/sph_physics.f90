@@ -60,6 +60,9 @@ module sph_physics
         !> v + dt a_b, a_b the acceleration of the background pressure transport_pressure
         logical :: transport_velocity = .false.
         real(wp) :: transport_pressure = 0.0_wp    !< Pa, p_b
+        !> the internal energy's rate: pressure work and viscous heating. Off, dedt stays 0
+        !> (no equation of state reads the energy; its terms were a tenth of a step)
+        logical :: energy_equation = .false.
     end type physics_t
 
 contains
@@ -183,6 +186,7 @@ contains
         if (trim(cfg%numerics%wall_pressure) == 'extrapolated') &
             phys%wall_pressure = WALL_PRESSURE_EXTRAPOLATED
         phys%transport_velocity = cfg%numerics%transport_velocity
+        phys%energy_equation = cfg%fluid%energy_equation
         ! Adami et al. (2013) take p_b = p0 = rho0 c^2, the equation of state's stiffness
         phys%transport_pressure = cfg%numerics%transport_pressure
         if (phys%transport_pressure <= 0.0_wp) phys%transport_pressure = phys%rho0 * phys%c**2

@@ -20,6 +20,7 @@ module sph_physics_input
         real(wp) :: tait_gamma, density_variation
         real(wp) :: velocity_scale        !< 0 = estimated from walls and body force
         real(wp) :: length_scale          !< 0 = smallest wall-to-wall distance or box size
+        logical :: energy_equation        !< integrate the internal energy (a diagnostic)
     end type fluid_input_t
 
     type :: numerics_input_t
@@ -76,6 +77,10 @@ contains
             unit='m/s', doc='V for the criterion; 0 = estimated')
         call grp%get_real('length_scale', fl%length_scale, 0.0_wp, min=0.0_wp, unit='m', &
             doc='L for the criterion; 0 = narrowest gap or smallest box side')
+        call grp%get_logical('energy_equation', fl%energy_equation, .false., &
+            doc='integrate the internal energy per unit mass (pressure work and viscous ' // &
+            'heating): a diagnostic, which no equation of state reads; .false. keeps ' // &
+            'each particle''s energy as it started')
     end subroutine read_fluid_input
 
     !> Read the &numerics group (kernel, models, time-step factors, shifting, integrator, ...).

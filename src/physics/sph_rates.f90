@@ -359,6 +359,7 @@ contains
         logical, allocatable :: curved(:)     !< solid s (1..) is not a plane
         real(wp), allocatable :: vol_sq(:)   !< transport velocity: (m/rho)^2 of all particles
         logical :: quadratic_walls            !< Morris walls with wall_extrapolation = quadratic
+        logical :: energy                     !< the energy's rate wanted (else dedt stays 0)
         real(wp) :: curv_i(3)                 !< half of i's velocity Laplacian (wall_curvature)
         real(wp) :: d_f, d_w
 
@@ -368,6 +369,7 @@ contains
         quadratic_walls = morris_walls .and. phys%wall_quadratic .and. phys%nu > 0.0_wp
         strain_viscosity = phys%viscosity == VISCOSITY_STRAIN_RATE
         visc_scale = phys%nu * phys%viscous_scale
+        energy = phys%energy_equation
         k = 0
         if (p%n_owned > 0) k = maxval(nl%start(2:p%n_owned + 1) - nl%start(1:p%n_owned))
         allocate(w_near(k), w_d(3, k), w_r(k), w_r2(k), w_dwdr(k), other(k))
@@ -505,7 +507,7 @@ contains
                 end if
                 if (n_fluid > 0) call morris_fluid_pairs(n_fluid, near(b + 1:), &
                     d_near(:, b + 1:), grad_near(b + 1:), visc_near(b + 1:), i, visc_scale, &
-                    state, drho, dv, de, p%drhodt, p%dvdt, p%dedt)
+                    state, energy, drho, dv, de, p%drhodt, p%dvdt, p%dedt)
                 ! Morris' walls: every other partner is a wall particle (morris_wall_pairs)
                 if (fast_walls) call morris_wall_pairs(b + n_fluid + 1, b + n_near)
                 do m = b + merge(n_near + 1, n_fluid + 1, fast_walls), b + n_near
@@ -574,7 +576,7 @@ contains
                     if (paired(j)) then
                         p%drhodt(j) = p%drhodt(j) + m_i * vg
                         p%dvdt(:, j) = p%dvdt(:, j) - m_i * f
-                        p%dedt(j) = p%dedt(j) + m_i * e_pair
+                        if (energy) p%dedt(j) = p%dedt(j) + m_i * e_pair
                     else
                         s = force_slot(j)
                         if (s > 0 .and. tvf) then
@@ -592,7 +594,7 @@ contains
                 ! i's rates already hold what the rows before handed on (pairs of owned
                 ! fluid particles are evaluated from the lower index only): i is complete
                 p%drhodt(i) = p%drhodt(i) + drho
-                p%dedt(i) = p%dedt(i) + de
+                if (energy) p%dedt(i) = p%dedt(i) + de
                 if (paired(i)) then
                     p%dvdt(1, i) = p%dvdt(1, i) + dv(1) + phys%body_force(1)
                     p%dvdt(2, i) = p%dvdt(2, i) + dv(2) + phys%body_force(2)
@@ -844,12 +846,15 @@ contains
     !>   f = -(p_i/rho_i^2 + p_j/rho_j^2) grad W + nu s (1/rho_i + 1/rho_j) visc_f v_ij,
     !>   e = 1/2 (p_i/rho_i^2 + p_j/rho_j^2) v_ij . grad W - 1/2 nu s (...) visc_f |v_ij|^2,
     !> per unit mass of the partner; state holds v, m, p/rho^2, 1/rho of every particle.
-    !> (A variant computing two components in 2D ran no faster.)
-    subroutine morris_fluid_pairs(n, near, d, grad_w, visc_f, i, visc_scale, state, drho, dv, &
-            de, drhodt, dvdt, dedt)
+    !> The energy's terms only with `energy` (the loop unswitched: without them it is a
+    !> tenth of a channel step cheaper). (A variant computing two components in 2D ran no
+    !> faster.)
+    subroutine morris_fluid_pairs(n, near, d, grad_w, visc_f, i, visc_scale, state, energy, &
+            drho, dv, de, drhodt, dvdt, dedt)
         integer, intent(in) :: n, near(n), i
         real(wp), intent(in) :: d(3, *), grad_w(n), visc_f(n), visc_scale
         real(wp), intent(in) :: state(6, *)
+        logical, intent(in) :: energy
         real(wp), intent(inout) :: drho, dv(3), de
         !> the particles' rates (all of them, ghosts included): j's terms are added to j's.
         !> (Written straight to them rather than to a packed scratch array read back later:
@@ -874,14 +879,17 @@ contains
             pterm = pi_term + state(5, j)
             coeff = visc_scale * (inv_rho_i + state(6, j)) * visc_f(m)
             f = coeff * vij - pterm * grad
-            e_pair = 0.5_wp * pterm * vg - 0.5_wp * coeff * (vij(1)**2 + vij(2)**2 + vij(3)**2)
             m_j = state(4, j)
             sum_rho = sum_rho + m_j * vg
             sum_v = sum_v + m_j * f
-            sum_e = sum_e + m_j * e_pair
             drhodt(j) = drhodt(j) + m_i * vg
             dvdt(:, j) = dvdt(:, j) - m_i * f
-            dedt(j) = dedt(j) + m_i * e_pair
+            if (energy) then
+                e_pair = 0.5_wp * pterm * vg - 0.5_wp * coeff * (vij(1)**2 + vij(2)**2 + &
+                    vij(3)**2)
+                sum_e = sum_e + m_j * e_pair
+                dedt(j) = dedt(j) + m_i * e_pair
+            end if
         end do
         drho = drho + sum_rho
         dv = dv + sum_v
