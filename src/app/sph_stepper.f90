@@ -726,12 +726,14 @@ contains
         if (present(dt_cap)) dt = min(dt, dt_cap)
         ! a shifting step measures its particles' displacement from x_old (migrate_and_rebuild)
         call verlet_drift(sim%p, dt, integrated_density(sim), sim%step_moved, &
-            keep_start=sim%phys%shifting /= SHIFTING_NONE)
+            keep_start=sim%phys%shifting /= SHIFTING_NONE, &
+            integrate_energy=sim%phys%energy_equation)
         call refresh_halo(sim, env)
         call prepare_boundaries(sim, dt)
         call filter_density(sim, env, sim%step + 1_i8)
         call evaluate_rates(sim, env)
-        call verlet_kick(sim%p, dt, integrated_density(sim), sim%kick_maxima)
+        call verlet_kick(sim%p, dt, integrated_density(sim), sim%kick_maxima, &
+            integrate_energy=sim%phys%energy_equation)
         sim%kick_maxima = global_max(env, sim%kick_maxima)
         sim%time = sim%time + dt
         sim%step = sim%step + 1
@@ -862,7 +864,8 @@ contains
         type(simulation_t), intent(inout) :: sim
         real(wp), intent(in) :: dt
         call save_step_start(sim%p)
-        call advance(sim%p, 0.5_wp * dt, integrated_density(sim), sim%phys%transport_velocity)
+        call advance(sim%p, 0.5_wp * dt, integrated_density(sim), sim%phys%transport_velocity, &
+            sim%phys%energy_equation)
     end subroutine predictor
 
     !> Ghosts take their owners' predicted positions and velocities.
@@ -904,7 +907,8 @@ contains
     subroutine corrector(sim, dt)
         type(simulation_t), intent(inout) :: sim
         real(wp), intent(in) :: dt
-        call advance(sim%p, dt, integrated_density(sim), sim%phys%transport_velocity)
+        call advance(sim%p, dt, integrated_density(sim), sim%phys%transport_velocity, &
+            sim%phys%energy_equation)
         sim%time = sim%time + dt
         sim%step = sim%step + 1
         sim%last_limits%dt = dt
