@@ -57,7 +57,7 @@ module sph_namelist
         procedure :: error => group_error
         procedure :: finish => group_finish
         procedure :: to_text => group_to_text
-        procedure, private :: find, declare, convert_reals, element_order
+        procedure, private :: find, find_all, declare, convert_reals, element_order
     end type nml_group_t
 
     type :: nml_file_t
@@ -501,6 +501,22 @@ contains
         end do
     end function find
 
+    !> The assignments of an array key, in input order: an array may be assigned element
+    !> by element (`wall_velocity(1,3) = 1e-3` and `wall_velocity(1,4) = -1e-3`), as
+    !> Fortran's namelist input allows; the conversions refuse an element given twice.
+    function find_all(self, key) result(found)
+        class(nml_group_t), intent(inout) :: self
+        character(len=*), intent(in) :: key
+        integer, allocatable :: found(:)
+        integer :: i
+        allocate(found(0))
+        do i = 1, size(self%items)
+            if (self%items(i)%key /= key) cycle
+            found = [found, i]
+            self%items(i)%used = .true.
+        end do
+    end function find_all
+
     subroutine declare(self, key, kind, default, range, unit, doc)
         class(nml_group_t), intent(inout) :: self
         character(len=*), intent(in) :: key, kind, default, range
@@ -540,7 +556,8 @@ contains
         character(len=*), intent(in), optional :: unit, doc
         logical, intent(in), optional :: scalar
         character(len=:), allocatable :: range
-        integer :: i, k
+        integer :: i, k, set_line(size(var))
+        integer, allocatable :: items(:)
         logical :: is_scalar
         is_scalar = .false.
         if (present(scalar)) is_scalar = scalar
@@ -552,8 +569,16 @@ contains
                 range, unit, doc)
         end if
         var = default
-        i = self%find(key)
-        if (i /= 0) call self%convert_reals(self%items(i), var, [size(var)])
+        if (is_scalar) then
+            i = self%find(key)
+            if (i /= 0) call self%convert_reals(self%items(i), var, [size(var)])
+        else
+            items = self%find_all(key)
+            set_line = 0
+            do i = 1, size(items)
+                call self%convert_reals(self%items(items(i)), var, [size(var)], set_line)
+            end do
+        end if
         do k = 1, size(var)
             if (.not. in_range(var(k))) then
                 if (is_scalar) then
@@ -585,12 +610,16 @@ contains
         real(wp), intent(in) :: default
         character(len=*), intent(in), optional :: unit, doc
         real(wp) :: flat(size(var))
-        integer :: i
+        integer :: i, set_line(size(var))
+        integer, allocatable :: items(:)
         call self%declare(key, 'real(' // itoa(size(var, 1)) // ',' // itoa(size(var, 2)) // &
             ')', real_text(default), '', unit, doc)
         flat = default
-        i = self%find(key)
-        if (i /= 0) call self%convert_reals(self%items(i), flat, shape(var))
+        items = self%find_all(key)
+        set_line = 0
+        do i = 1, size(items)
+            call self%convert_reals(self%items(items(i)), flat, shape(var), set_line)
+        end do
         var = reshape(flat, shape(var))
         call append_resolved(self, key, reals_text(flat))
     end subroutine get_real_matrix
@@ -737,8 +766,8 @@ contains
         character(len=*), intent(in), optional :: choices(:)
         character(len=*), intent(in), optional :: doc
         logical, intent(in), optional :: scalar
-        integer :: i, k, n
-        integer, allocatable :: order(:)
+        integer :: i, k, n, m, set_line(size(var))
+        integer, allocatable :: order(:), items(:)
         character(len=:), allocatable :: range, shown
         logical :: is_scalar
         is_scalar = .false.
@@ -752,14 +781,24 @@ contains
                 range, doc=doc)
         end if
         var = default
-        i = self%find(key)
-        if (i /= 0) then
+        if (is_scalar) then
+            i = self%find(key)
+            items = [integer ::]
+            if (i /= 0) items = [i]
+        else
+            items = self%find_all(key)
+        end if
+        set_line = 0
+        do m = 1, size(items)
+            i = items(m)
             order = self%element_order(self%items(i), [size(var)])
             n = min(size(order), size(self%items(i)%values))
             ! as convert_reals: values beyond the elements are an error, not dropped
             if (size(order) > 0 .and. size(self%items(i)%values) > size(order)) &
                 call self%error(key, itoa(size(self%items(i)%values)) // ' values for ' // &
                     itoa(size(order)) // ' element(s)')
+            if (.not. claim_elements(self, self%items(i), order(1:n), [size(var)], set_line)) &
+                cycle
             do k = 1, n
                 associate (v => self%items(i)%values(k))
                     if (v%null) cycle
@@ -771,7 +810,7 @@ contains
                     var(order(k)) = v%text
                 end associate
             end do
-        end if
+        end do
         if (present(choices)) then
             do k = 1, size(var)
                 var(k) = to_lower(var(k))
@@ -805,13 +844,52 @@ contains
         end if
     end function single_value
 
+    !> The elements item sets (order: their column-major indices, one per value; empty
+    !> entries set none) claimed for it in set_line, the line that set each element (0:
+    !> none yet); when one was set before, one error naming it and both lines, and nothing
+    !> claimed: the item is then skipped.
+    logical function claim_elements(self, item, order, shp, set_line) result(claimed)
+        class(nml_group_t), intent(inout) :: self
+        type(nml_item_t), intent(in) :: item
+        integer, intent(in) :: order(:), shp(:)
+        integer, intent(inout) :: set_line(:)
+        integer :: k, d, rest, element
+        character(len=:), allocatable :: shown
+        claimed = .true.
+        do k = 1, min(size(order), size(item%values))
+            if (item%values(k)%null) cycle
+            element = order(k)
+            if (set_line(element) == 0) cycle
+            shown = item%key
+            if (len(item%subscript) > 0) then
+                shown = shown // '('
+                rest = element - 1
+                do d = 1, size(shp)
+                    if (d > 1) shown = shown // ','
+                    shown = shown // itoa(mod(rest, shp(d)) + 1)
+                    rest = rest / shp(d)
+                end do
+                shown = shown // ')'
+            end if
+            call self%error(shown, 'given more than once (lines ' // &
+                itoa(set_line(element)) // ' and ' // itoa(item%line) // ')')
+            claimed = .false.
+            return
+        end do
+        do k = 1, min(size(order), size(item%values))
+            if (.not. item%values(k)%null) set_line(order(k)) = item%line
+        end do
+    end function claim_elements
+
     !> Convert the tokens of one assignment into var (shape given, column-major), by the
-    !> list-directed read Fortran's namelist input uses.
-    subroutine convert_reals(self, item, var, shp)
+    !> list-directed read Fortran's namelist input uses. set_line: the line that set each
+    !> element so far (0: none), for an array assigned in several parts.
+    subroutine convert_reals(self, item, var, shp, set_line)
         class(nml_group_t), intent(inout) :: self
         type(nml_item_t), intent(in) :: item
         real(wp), intent(inout) :: var(:)
         integer, intent(in) :: shp(:)
+        integer, intent(inout), optional :: set_line(:)
         integer, allocatable :: order(:)
         integer :: k, ios
         real(wp) :: x
@@ -822,6 +900,9 @@ contains
             call self%error(item%key, itoa(size(item%values)) // ' values for ' // &
                 itoa(size(order)) // ' element(s)')
             return
+        end if
+        if (present(set_line)) then
+            if (.not. claim_elements(self, item, order, shp, set_line)) return
         end if
         do k = 1, size(item%values)
             associate (v => item%values(k))
