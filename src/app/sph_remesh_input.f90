@@ -43,5 +43,12 @@ contains
             call grp%error('disorder_threshold', "works with mode = 'same' only (a " // &
             "disordered flow is remeshed at its own spacing), not with mode = '" // &
             trim(rem%mode) // "'")
+        if (trim(rem%mode) == 'none') then
+            call grp%note_if_given('every_steps', "a run remeshes only with mode /= 'none'")
+            call grp%note_if_given('every_time', "a run remeshes only with mode /= 'none'")
+        end if
+        if (.not. (rem%disorder_threshold > 0.0_wp)) call grp%note_if_given( &
+            'disorder_check_steps', 'it spaces the disorder measurements, which run ' // &
+            'with disorder_threshold > 0 only')
     end subroutine read_remesh_input
 end module sph_remesh_input

@@ -28,7 +28,6 @@ module sph_run_input
         character(len=path_len) :: output_dir
         real(wp) :: output_interval       !< 0 = first and last state only
         real(wp), allocatable :: output_times(:)   !< exact snapshot times, increasing
-        character(len=:), allocatable :: note      !< entries skipped (past t_end); '' = none
     end type output_input_t
 
 contains
@@ -58,7 +57,7 @@ contains
     end subroutine read_run_input
 
     !> &output; the listed times must lie in [0, t_end] and increase. Entries past t_end (a
-    !> shortened run) are skipped with a note in out%note, not refused. The output folder must
+    !> shortened run) are skipped with a note (the group's), not refused. The output folder must
     !> be creatable: its nearest existing ancestor must be a directory (nothing is made here).
     subroutine read_output_input(grp, t_end, case_name, out)
         type(nml_group_t), intent(inout) :: grp
@@ -100,7 +99,6 @@ contains
         end if
         call grp%get_real_list('output_times', out%output_times, max_output_times, &
             min=0.0_wp, unit='s', doc='times at which a snapshot is written exactly')
-        out%note = ''
         do k = 2, size(out%output_times)
             if (out%output_times(k) <= out%output_times(k - 1)) then
                 call grp%error('output_times', 'must be strictly increasing')
@@ -111,9 +109,9 @@ contains
         if (n_kept < size(out%output_times)) then
             write(t_text, '(es10.3)') t_end
             write(n_text, '(i0)') size(out%output_times) - n_kept
-            out%note = '&output output_times: ' // trim(n_text) // &
+            call grp%note('output_times', trim(n_text) // &
                 trim(merge(' entry  ', ' entries', size(out%output_times) - n_kept == 1)) // &
-                ' past t_end = ' // trim(adjustl(t_text)) // ' s skipped'
+                ' past t_end = ' // trim(adjustl(t_text)) // ' s skipped')
             out%output_times = pack(out%output_times, out%output_times <= t_end)
         end if
     end subroutine read_output_input

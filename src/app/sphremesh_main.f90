@@ -52,7 +52,7 @@ program sphremesh_main
     if (stat /= 0) call fatal_collective('input', errmsg)
     call log_info('resolved configuration (' // opts%input_file // '):')
     call log_info(config_to_text(cfg))
-    if (len(cfg%output%note) > 0) call log_info('note: ' // cfg%output%note)
+    if (len(cfg%notes) > 0) call log_info(cfg%notes)
 
     if (opts%check_only) then
         ! the input is valid (load_config stopped otherwise): set up and report, write nothing

@@ -51,6 +51,9 @@ module sph_config
         type(region_input_t), allocatable :: regions(:)   !< &region groups, in file order
         character(len=:), allocatable :: source_file
         character(len=:), allocatable :: resolved   !< namelist text of every key's value
+        !> notes on the input (keys given without effect, values adjusted), one a line,
+        !> each starting with 'note: '; '' when none
+        character(len=:), allocatable :: notes
     end type config_t
 
 contains
@@ -109,10 +112,12 @@ contains
         regions = file%take_all('region')
         call read_groups(grp, bodies, regions, cfg)
         cfg%resolved = ''
+        cfg%notes = ''
         do g = 1, size(known_groups)
             call grp(g)%finish()
             stat = stat + grp(g)%n_errors
             errmsg = errmsg // grp(g)%errors
+            call add_notes(grp(g)%notes)
             ! &refinement means nothing without &region (and is refused alone): left out
             if (trim(known_groups(g)) == 'refinement' .and. size(regions) == 0) cycle
             cfg%resolved = cfg%resolved // grp(g)%to_text()
@@ -121,15 +126,32 @@ contains
             call bodies(g)%finish()
             stat = stat + bodies(g)%n_errors
             errmsg = errmsg // bodies(g)%errors
+            call add_notes(bodies(g)%notes)
             cfg%resolved = cfg%resolved // bodies(g)%to_text()
         end do
         do g = 1, size(regions)
             call regions(g)%finish()
             stat = stat + regions(g)%n_errors
             errmsg = errmsg // regions(g)%errors
+            call add_notes(regions(g)%notes)
             cfg%resolved = cfg%resolved // regions(g)%to_text()
         end do
         if (stat /= 0) errmsg = 'invalid input in ' // source_name // ':' // errmsg
+    contains
+        !> A group's notes (each after a new line) onto cfg%notes as 'note: ...' lines.
+        subroutine add_notes(lines)
+            character(len=*), intent(in) :: lines
+            integer :: start, last
+            character(len=*), parameter :: nl = new_line('a')
+            start = 2
+            do while (start <= len(lines))
+                last = index(lines(start:), nl)
+                last = merge(len(lines), start + last - 2, last == 0)
+                if (len(cfg%notes) > 0) cfg%notes = cfg%notes // nl
+                cfg%notes = cfg%notes // "note: " // lines(start:last)
+                start = last + 2
+            end do
+        end subroutine add_notes
     end subroutine config_parse
 
     !> The fully resolved configuration as namelist text (defaults included), readable by

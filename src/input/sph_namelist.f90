@@ -49,12 +49,15 @@ module sph_namelist
         type(nml_key_t), allocatable :: keys(:)  !< declared keys, in declaration order
         character(len=:), allocatable :: resolved !< `    key = value` lines
         character(len=:), allocatable :: errors  !< one line per error, each starting nl
+        !> one line per note (a key given that has no effect here), each starting nl
+        character(len=:), allocatable :: notes
         integer :: n_errors = 0
         integer :: instance = 0                  !< of a repeated group (1, 2, ...); 0: single
     contains
         procedure :: get_real, get_int, get_logical, get_string
         procedure :: get_real_array, get_real_matrix, get_string_array, get_real_list
         procedure :: error => group_error
+        procedure :: note => group_note, note_if_given
         procedure :: finish => group_finish
         procedure :: to_text => group_to_text
         procedure, private :: find, find_all, declare, convert_reals, element_order
@@ -111,6 +114,7 @@ contains
                     allocate(grp%items(0), grp%keys(0))
                     grp%resolved = ''
                     grp%errors = ''
+                    grp%notes = ''
                     in_group = .true.
                     open_line = tok_line
                 case default
@@ -426,6 +430,7 @@ contains
         allocate(grp%items(0), grp%keys(0))
         grp%resolved = ''
         grp%errors = ''
+        grp%notes = ''
     end function take
 
     !> Every instance of a repeated group, in file order.
@@ -455,6 +460,27 @@ contains
 
     !> After the owner has declared its keys: every key given but not declared is an error,
     !> with the closest declared name suggested and the allowed keys listed.
+    !> A note on key: not an error (the run goes on), printed after the resolved input.
+    subroutine group_note(self, key, what)
+        class(nml_group_t), intent(inout) :: self
+        character(len=*), intent(in) :: key, what
+        self%notes = self%notes // nl // '&' // self%name // ' ' // key // ': ' // what
+    end subroutine group_note
+
+    !> A note when key was given in the input although it has no effect with the rest of
+    !> it (a Tait exponent with another equation of state); `why` says why.
+    subroutine note_if_given(self, key, why)
+        class(nml_group_t), intent(inout) :: self
+        character(len=*), intent(in) :: key, why
+        integer :: i
+        do i = 1, size(self%items)
+            if (self%items(i)%key /= key) cycle
+            call self%note(key, 'given (line ' // itoa(self%items(i)%line) // ') but has ' // &
+                'no effect: ' // why)
+            return
+        end do
+    end subroutine note_if_given
+
     subroutine group_finish(self)
         class(nml_group_t), intent(inout) :: self
         integer :: i, k

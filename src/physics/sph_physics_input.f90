@@ -81,6 +81,11 @@ contains
             doc='integrate the internal energy per unit mass (pressure work and viscous ' // &
             'heating): a diagnostic, which no equation of state reads; .false. keeps ' // &
             'each particle''s energy as it started')
+        ! keys given that the rest of the input makes idle: a note each, not an error
+        if (trim(fl%eos) /= 'tait') call grp%note_if_given('tait_gamma', &
+            "it is the exponent of eos = 'tait' (eos = '" // trim(fl%eos) // "')")
+        if (fl%sound_speed > 0.0_wp) call grp%note_if_given('density_variation', &
+            "it sets the sound speed by Morris' criterion, and sound_speed is given")
     end subroutine read_fluid_input
 
     !> Read the &numerics group (kernel, models, time-step factors, shifting, integrator, ...).
@@ -189,7 +194,49 @@ contains
         if (trim(num%wall_pressure) /= 'continuity' .and. trim(num%wall_model) /= 'morris') &
             call grp%error('wall_pressure', "'extrapolated' works with wall_model = " // &
                 "'morris' only (the other models have no wall particles in the sums)")
+        call note_idle_numerics(grp, num)
     end subroutine read_numerics_input
+
+    !> A note for each &numerics key given that the rest of the group makes idle (a
+    !> repulsive wall's strength with Morris walls, ...): not errors, but a user who set
+    !> one expected it to act.
+    subroutine note_idle_numerics(grp, num)
+        type(nml_group_t), intent(inout) :: grp
+        type(numerics_input_t), intent(in) :: num
+        character(len=*), parameter :: repulsive_keys(4) = [character(len=18) :: &
+            'repulsive_strength', 'repulsive_r0', 'repulsive_n1', 'repulsive_n2']
+        character(len=:), allocatable :: walls
+        integer :: k
+        walls = "(wall_model = '" // trim(num%wall_model) // "')"
+        if (trim(num%wall_model) /= 'repulsive' .and. &
+            trim(num%wall_model) /= 'repulsive_mirror') then
+            do k = 1, size(repulsive_keys)
+                call grp%note_if_given(trim(repulsive_keys(k)), 'it shapes the repulsive ' // &
+                    "walls' force (eq. 2.18) " // walls)
+            end do
+        end if
+        if (trim(num%wall_model) /= 'morris') then
+            call grp%note_if_given('beta_max', "it caps Morris' wall velocity " // &
+                'extrapolation ' // walls)
+            call grp%note_if_given('wall_extrapolation', "it sets Morris' wall particles' " // &
+                'velocities ' // walls)
+            call grp%note_if_given('wall_pressure', "it sets Morris' wall particles' " // &
+                'density ' // walls)
+        end if
+        if (trim(num%viscosity_model) /= 'morris') call grp%note_if_given( &
+            'viscosity_normalisation', "it scales Morris' viscous term (viscosity_model = '" // &
+            trim(num%viscosity_model) // "')")
+        if (trim(num%density_filter) == 'none') call grp%note_if_given( &
+            'density_filter_interval', "it spaces the Shepard filters (density_filter = 'none')")
+        if (trim(num%shifting) == 'none') then
+            call grp%note_if_given('shifting_coefficient', "it scales the particle shifting " // &
+                "(shifting = 'none')")
+            call grp%note_if_given('shifting_limit', "it caps the particle shifting " // &
+                "(shifting = 'none')")
+        end if
+        if (.not. num%transport_velocity) call grp%note_if_given('transport_pressure', &
+            'it is the transport velocity''s background pressure (transport_velocity = .false.)')
+    end subroutine note_idle_numerics
 
     !> The transport-velocity formulation needs a density from the particles' positions (its
     !> background pressure acts on their arrangement), wall particles that fill the support
