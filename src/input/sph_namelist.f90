@@ -102,6 +102,17 @@ contains
         expect_value = .false.
         n_groups = 0
         open_line = 0
+        ! a UTF-8 byte-order mark, as some editors write it, is not part of the text; UTF-16
+        ! (a byte-order mark of its own, or NUL bytes) is not ASCII-compatible at all
+        if (len(text) >= 3) then
+            if (text(1:3) == achar(239) // achar(187) // achar(191)) pos = 4
+        end if
+        if (index(text, achar(0)) > 0 .or. index(text, achar(254) // achar(255)) == 1 .or. &
+            index(text, achar(255) // achar(254)) == 1) then
+            call fail(1, 'not a plain text file (NUL bytes or a UTF-16 byte-order mark): ' // &
+                'save it as UTF-8 or ASCII text')
+            return
+        end if
         do
             call next_token(kind_tok, tok, quoted, tok_line)
             if (stat /= 0) return
@@ -232,7 +243,7 @@ contains
             integer, intent(in) :: at_line
             character(len=*), intent(in) :: what
             stat = 1
-            errmsg = source // ':' // itoa(at_line) // ': ' // what
+            errmsg = source // ':' // itoa(at_line) // ': ' // printable(what)
         end subroutine fail
 
         !> The next token: a group start (&name), an end (/ or &end), a key (name or name(..)
@@ -455,11 +466,35 @@ contains
         label = '&' // self%name
         if (self%instance > 0) label = label // ' ' // itoa(self%instance) // ' (line ' // &
             itoa(self%line) // ')'
-        self%errors = self%errors // nl // '  ' // label // ' ' // key // ': ' // what
+        self%errors = self%errors // nl // '  ' // label // ' ' // printable(key) // ': ' // &
+            printable(what)
     end subroutine group_error
 
     !> After the owner has declared its keys: every key given but not declared is an error,
     !> with the closest declared name suggested and the allowed keys listed.
+    !> text for a message: bytes outside printable ASCII (a binary or mis-encoded file's,
+    !> a control character) shown as \xNN, and a long text cut after 200 characters.
+    function printable(text) result(shown)
+        character(len=*), intent(in) :: text
+        character(len=:), allocatable :: shown
+        character(len=*), parameter :: hex = '0123456789abcdef'
+        integer :: k, code
+        shown = ''
+        do k = 1, len(text)
+            code = iachar(text(k:k))
+            if (code >= 32 .and. code <= 126) then
+                shown = shown // text(k:k)
+            else
+                shown = shown // '\x' // hex(code / 16 + 1:code / 16 + 1) // &
+                    hex(mod(code, 16) + 1:mod(code, 16) + 1)
+            end if
+            if (len(shown) > 200 .and. k < len(text)) then
+                shown = shown // '...'
+                exit
+            end if
+        end do
+    end function printable
+
     !> A note on key: not an error (the run goes on), printed after the resolved input.
     subroutine group_note(self, key, what)
         class(nml_group_t), intent(inout) :: self
