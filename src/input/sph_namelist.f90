@@ -470,9 +470,7 @@ contains
             printable(what)
     end subroutine group_error
 
-    !> After the owner has declared its keys: every key given but not declared is an error,
-    !> with the closest declared name suggested and the allowed keys listed.
-    !> text for a message: bytes outside printable ASCII (a binary or mis-encoded file's,
+    !> Text for a message: bytes outside printable ASCII (a binary or mis-encoded file's,
     !> a control character) shown as \xNN, and a long text cut after 200 characters.
     function printable(text) result(shown)
         character(len=*), intent(in) :: text
@@ -516,6 +514,8 @@ contains
         end do
     end subroutine note_if_given
 
+    !> After the owner has declared its keys: every key given but not declared is an error,
+    !> with the closest declared name suggested and the allowed keys listed.
     subroutine group_finish(self)
         class(nml_group_t), intent(inout) :: self
         integer :: i, k
@@ -630,16 +630,12 @@ contains
                 range, unit, doc)
         end if
         var = default
-        if (is_scalar) then
-            i = self%find(key)
-            if (i /= 0) call self%convert_reals(self%items(i), var, [size(var)])
-        else
-            items = self%find_all(key)
-            set_line = 0
-            do i = 1, size(items)
-                call self%convert_reals(self%items(items(i)), var, [size(var)], set_line)
-            end do
-        end if
+        ! (a scalar given twice is an element given twice)
+        items = self%find_all(key)
+        set_line = 0
+        do i = 1, size(items)
+            call self%convert_reals(self%items(items(i)), var, [size(var)], set_line)
+        end do
         do k = 1, size(var)
             if (.not. in_range(var(k))) then
                 if (is_scalar) then
@@ -842,13 +838,7 @@ contains
                 range, doc=doc)
         end if
         var = default
-        if (is_scalar) then
-            i = self%find(key)
-            items = [integer ::]
-            if (i /= 0) items = [i]
-        else
-            items = self%find_all(key)
-        end if
+        items = self%find_all(key)
         set_line = 0
         do m = 1, size(items)
             i = items(m)
