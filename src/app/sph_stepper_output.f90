@@ -29,7 +29,7 @@ contains
         call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, &
             sim%cfg%domain%dimension, code_version, sim%input_text, sim%snapshot_index, stat, &
             errmsg, sim%cfg%domain%dx, balance)
-        if (stat /= 0) call fatal_collective('checkpoint', errmsg)
+        if (stat /= 0) call fatal_collective('checkpoint', errmsg // ' (&output output_dir)')
         if (all(sim%checkpoints /= path)) &
             sim%checkpoints = [character(len=512) :: sim%checkpoints, path]
         do while (size(sim%checkpoints) > sim%cfg%restart%checkpoints_kept)
@@ -263,7 +263,8 @@ contains
             sim%step)
         call write_snapshot(env, sim%p, path, sim%time, sim%step, sim%cfg%domain%dimension, &
             code_version, sim%input_text, stat, errmsg, with_virtual=writes_virtual(sim))
-        if (stat /= 0) call fatal_collective('output', errmsg)
+        ! (the folder is the user's key: named, since the message gives the path only)
+        if (stat /= 0) call fatal_collective('output', errmsg // ' (&output output_dir)')
         rows = global_sum(env, int(count(sim%p%kind(1:sim%p%n_owned) /= KIND_VIRTUAL .or. &
             writes_virtual(sim)), i8))
         k = index(path, '/', back=.true.)
