@@ -2,7 +2,7 @@
 !> and validates the same text, so a bad input stops all ranks with the same single message.
 module sph_input
     use sph_config, only: config_t, config_parse, config_read_file
-    use sph_mpi_env, only: mpi_env_t, broadcast_text
+    use sph_mpi_env, only: mpi_env_t, broadcast_text, agreed_status
     implicit none
     private
     public :: load_config
@@ -19,17 +19,17 @@ contains
         character(len=:), allocatable, intent(out) :: errmsg
         character(len=:), allocatable :: text, read_error
 
+        stat = 0
         if (env%rank == 0) then
             call config_read_file(filename, text, stat, read_error)
-            if (stat /= 0) text = achar(0) // read_error   ! a NUL marks a read failure
+            if (stat /= 0) text = read_error
         end if
+        ! the read's status on its own (a marker in the text would be a file's first byte)
+        stat = agreed_status(env, merge(1, 0, stat /= 0))
         call broadcast_text(env, text)
-        if (len(text) > 0) then
-            if (text(1:1) == achar(0)) then
-                stat = 1
-                errmsg = text(2:)
-                return
-            end if
+        if (stat /= 0) then
+            errmsg = text
+            return
         end if
         call config_parse(cfg, text, filename, stat, errmsg)
     end subroutine load_config

@@ -20,6 +20,13 @@ module sph_namelist
     public :: nml_file_t, nml_group_t, nml_key_t, nml_parse, real_text
 
     character(len=*), parameter :: nl = new_line('a')
+    !> ASCII's control characters (tab included): not in a string value
+    character(len=*), parameter :: control_chars = achar(0) // achar(1) // achar(2) // &
+        achar(3) // achar(4) // achar(5) // achar(6) // achar(7) // achar(8) // achar(9) // &
+        achar(10) // achar(11) // achar(12) // achar(13) // achar(14) // achar(15) // &
+        achar(16) // achar(17) // achar(18) // achar(19) // achar(20) // achar(21) // &
+        achar(22) // achar(23) // achar(24) // achar(25) // achar(26) // achar(27) // &
+        achar(28) // achar(29) // achar(30) // achar(31) // achar(127)
     character(len=*), parameter :: name_chars = &
         'abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_%'
 
@@ -320,6 +327,13 @@ contains
                 ch = text(pos:pos)
                 if (ch == '(') depth = depth + 1
                 if (ch == ')') depth = depth - 1
+                ! a subscript holds neither ')' first nor '=' nor a new line: a stray
+                ! parenthesis would otherwise swallow the rest of the file
+                if (depth < 0 .or. (depth > 0 .and. (ch == '=' .or. ch == nl))) then
+                    call fail(line, "unbalanced parentheses in '" // text(start:pos - 1) // &
+                        "'")
+                    return
+                end if
                 if (depth == 0) then
                     if (index(' ,;/=!' // nl // achar(9) // achar(13), ch) > 0) exit
                     if ((ch == '"' .or. ch == "'") .and. pos > start) then
@@ -329,6 +343,11 @@ contains
                 pos = pos + 1
             end do
             token = text(start:pos - 1)
+            ! (every other separator was skipped above: an empty token is a stray '=')
+            if (len(token) == 0) then
+                call fail(line, "'=' without a key before it")
+                return
+            end if
             if (pos <= len(text)) then
                 ch = text(pos:pos)
                 if ((ch == '"' .or. ch == "'") .and. token(len(token):len(token)) == '*') then
@@ -471,7 +490,7 @@ contains
     end subroutine group_error
 
     !> Text for a message: bytes outside printable ASCII (a binary or mis-encoded file's,
-    !> a control character) shown as \xNN, and a long text cut after 200 characters.
+    !> a control character) shown as \xNN.
     function printable(text) result(shown)
         character(len=*), intent(in) :: text
         character(len=:), allocatable :: shown
@@ -485,10 +504,6 @@ contains
             else
                 shown = shown // '\x' // hex(code / 16 + 1:code / 16 + 1) // &
                     hex(mod(code, 16) + 1:mod(code, 16) + 1)
-            end if
-            if (len(shown) > 200 .and. k < len(text)) then
-                shown = shown // '...'
-                exit
             end if
         end do
     end function printable
@@ -630,8 +645,7 @@ contains
                 range, unit, doc)
         end if
         var = default
-        ! (a scalar given twice is an element given twice)
-        items = self%find_all(key)
+        items = scalar_or_all(self, key, is_scalar)
         set_line = 0
         do i = 1, size(items)
             call self%convert_reals(self%items(items(i)), var, [size(var)], set_line)
@@ -838,7 +852,7 @@ contains
                 range, doc=doc)
         end if
         var = default
-        items = self%find_all(key)
+        items = scalar_or_all(self, key, is_scalar)
         set_line = 0
         do m = 1, size(items)
             i = items(m)
@@ -856,6 +870,11 @@ contains
                     if (len(v%text) > len(var)) then
                         call self%error(key, "'" // v%text // "' is longer than " // &
                             itoa(len(var)) // ' characters')
+                        cycle
+                    end if
+                    ! (they would reach the log and every output file's stored input raw)
+                    if (scan(v%text, control_chars) > 0) then
+                        call self%error(key, "'" // v%text // "' holds a control character")
                         cycle
                     end if
                     var(order(k)) = v%text
@@ -880,6 +899,28 @@ contains
     end subroutine get_string_array
 
     ! ============================== helpers ==============================
+
+    !> The assignments to read for key: every one of an array's (find_all); a scalar's one,
+    !> refused when given twice (find: even after an empty value) or with a subscript.
+    function scalar_or_all(self, key, is_scalar) result(items)
+        class(nml_group_t), intent(inout) :: self
+        character(len=*), intent(in) :: key
+        logical, intent(in) :: is_scalar
+        integer, allocatable :: items(:)
+        integer :: i
+        if (.not. is_scalar) then
+            items = self%find_all(key)
+            return
+        end if
+        allocate(items(0))
+        i = self%find(key)
+        if (i == 0) return
+        if (len(self%items(i)%subscript) > 0) then
+            call self%error(key, 'a scalar takes no subscript')
+            return
+        end if
+        items = [i]
+    end function scalar_or_all
 
     logical function single_value(self, i)
         class(nml_group_t), intent(inout) :: self
@@ -912,7 +953,7 @@ contains
             element = order(k)
             if (set_line(element) == 0) cycle
             shown = item%key
-            if (len(item%subscript) > 0) then
+            if (product(shp) > 1) then
                 shown = shown // '('
                 rest = element - 1
                 do d = 1, size(shp)
