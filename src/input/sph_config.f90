@@ -117,7 +117,7 @@ contains
             call grp(g)%finish()
             stat = stat + grp(g)%n_errors
             errmsg = errmsg // grp(g)%errors
-            call add_notes(grp(g)%notes)
+            cfg%notes = cfg%notes // grp(g)%notes
             ! &refinement means nothing without &region (and is refused alone): left out
             if (trim(known_groups(g)) == 'refinement' .and. size(regions) == 0) cycle
             cfg%resolved = cfg%resolved // grp(g)%to_text()
@@ -126,32 +126,19 @@ contains
             call bodies(g)%finish()
             stat = stat + bodies(g)%n_errors
             errmsg = errmsg // bodies(g)%errors
-            call add_notes(bodies(g)%notes)
+            cfg%notes = cfg%notes // bodies(g)%notes
             cfg%resolved = cfg%resolved // bodies(g)%to_text()
         end do
         do g = 1, size(regions)
             call regions(g)%finish()
             stat = stat + regions(g)%n_errors
             errmsg = errmsg // regions(g)%errors
-            call add_notes(regions(g)%notes)
+            cfg%notes = cfg%notes // regions(g)%notes
             cfg%resolved = cfg%resolved // regions(g)%to_text()
         end do
         if (stat /= 0) errmsg = 'invalid input in ' // source_name // ':' // errmsg
-    contains
-        !> A group's notes (each after a new line) onto cfg%notes as 'note: ...' lines.
-        subroutine add_notes(lines)
-            character(len=*), intent(in) :: lines
-            integer :: start, last
-            character(len=*), parameter :: nl = new_line('a')
-            start = 2
-            do while (start <= len(lines))
-                last = index(lines(start:), nl)
-                last = merge(len(lines), start + last - 2, last == 0)
-                if (len(cfg%notes) > 0) cfg%notes = cfg%notes // nl
-                cfg%notes = cfg%notes // "note: " // lines(start:last)
-                start = last + 2
-            end do
-        end subroutine add_notes
+        ! (each group's notes start with a new line; the first one is dropped)
+        if (len(cfg%notes) > 0) cfg%notes = cfg%notes(2:)
     end subroutine config_parse
 
     !> The fully resolved configuration as namelist text (defaults included), readable by

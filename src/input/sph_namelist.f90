@@ -20,13 +20,6 @@ module sph_namelist
     public :: nml_file_t, nml_group_t, nml_key_t, nml_parse, real_text
 
     character(len=*), parameter :: nl = new_line('a')
-    !> ASCII's control characters (tab included): not in a string value
-    character(len=*), parameter :: control_chars = achar(0) // achar(1) // achar(2) // &
-        achar(3) // achar(4) // achar(5) // achar(6) // achar(7) // achar(8) // achar(9) // &
-        achar(10) // achar(11) // achar(12) // achar(13) // achar(14) // achar(15) // &
-        achar(16) // achar(17) // achar(18) // achar(19) // achar(20) // achar(21) // &
-        achar(22) // achar(23) // achar(24) // achar(25) // achar(26) // achar(27) // &
-        achar(28) // achar(29) // achar(30) // achar(31) // achar(127)
     character(len=*), parameter :: name_chars = &
         'abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_%'
 
@@ -56,7 +49,8 @@ module sph_namelist
         type(nml_key_t), allocatable :: keys(:)  !< declared keys, in declaration order
         character(len=:), allocatable :: resolved !< `    key = value` lines
         character(len=:), allocatable :: errors  !< one line per error, each starting nl
-        !> one line per note (a key given that has no effect here), each starting nl
+        !> one line per note (a key given that has no effect here), each 'note: ...' and
+        !> starting nl
         character(len=:), allocatable :: notes
         integer :: n_errors = 0
         integer :: instance = 0                  !< of a repeated group (1, 2, ...); 0: single
@@ -508,11 +502,21 @@ contains
         end do
     end function printable
 
+    !> text holds one of ASCII's control characters (tab included: not in a string value).
+    pure logical function has_control(text)
+        character(len=*), intent(in) :: text
+        integer :: k
+        has_control = .false.
+        do k = 1, len(text)
+            if (iachar(text(k:k)) < 32 .or. iachar(text(k:k)) == 127) has_control = .true.
+        end do
+    end function has_control
+
     !> A note on key: not an error (the run goes on), printed after the resolved input.
     subroutine group_note(self, key, what)
         class(nml_group_t), intent(inout) :: self
         character(len=*), intent(in) :: key, what
-        self%notes = self%notes // nl // '&' // self%name // ' ' // key // ': ' // what
+        self%notes = self%notes // nl // 'note: &' // self%name // ' ' // key // ': ' // what
     end subroutine group_note
 
     !> A note when key was given in the input although it has no effect with the rest of
@@ -873,7 +877,7 @@ contains
                         cycle
                     end if
                     ! (they would reach the log and every output file's stored input raw)
-                    if (scan(v%text, control_chars) > 0) then
+                    if (has_control(v%text)) then
                         call self%error(key, "'" // v%text // "' holds a control character")
                         cycle
                     end if
