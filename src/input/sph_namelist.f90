@@ -77,8 +77,8 @@ contains
 
     !> Split text into groups of assignments. Syntax errors (an unterminated group or string,
     !> a value without a key) stop with stat /= 0 and a message naming source, line and group.
-    subroutine nml_parse(text, source, file, stat, errmsg)
-        character(len=*), intent(in) :: text, source
+    subroutine nml_parse(raw_text, source, file, stat, errmsg)
+        character(len=*), intent(in) :: raw_text, source
         type(nml_file_t), intent(out) :: file
         integer, intent(out) :: stat
         character(len=:), allocatable, intent(out) :: errmsg
@@ -92,8 +92,10 @@ contains
         type(nml_group_t), allocatable :: groups(:)
         integer, parameter :: t_eof = 0, t_group = 1, t_end = 2, t_name = 3, t_value = 4, &
             t_comma = 5
+        character(len=:), allocatable :: text
 
         stat = 0
+        text = lines_ended_by_nl(raw_text)
         errmsg = ''
         file%source = source
         allocate(groups(0))
@@ -360,6 +362,10 @@ contains
                 if (text(p:p) /= ' ' .and. text(p:p) /= achar(9)) exit
                 p = p + 1
             end do
+            ! `key (i) =`: blanks before a subscript, as Fortran's own namelist read takes them
+            if (p > pos .and. p <= len(text) .and. verify(token, name_chars) == 0) then
+                if (text(p:p) == '(') call join_subscript(token, p)
+            end if
             if (p <= len(text)) then
                 if (text(p:p) == '=') then
                     kind_out = t_name
@@ -367,6 +373,27 @@ contains
                 end if
             end if
         end subroutine next_token
+
+        !> The subscript at text(p:) joined to the key token when '=' follows it on
+        !> its line; p left at that '='. Otherwise token and p are left as they were.
+        subroutine join_subscript(token, p)
+            character(len=:), allocatable, intent(inout) :: token
+            integer, intent(inout) :: p
+            integer :: q, r
+            q = index(text(p:), ')')
+            if (q == 0) return
+            q = p + q - 1
+            if (scan(text(p:q), '=' // nl) > 0) return
+            r = q + 1
+            do while (r <= len(text))
+                if (text(r:r) /= ' ' .and. text(r:r) /= achar(9)) exit
+                r = r + 1
+            end do
+            if (r > len(text)) return
+            if (text(r:r) /= '=') return
+            token = token // text(p:q)
+            p = r
+        end subroutine join_subscript
 
         subroutine read_string(str)
             character(len=:), allocatable, intent(out) :: str
@@ -527,6 +554,8 @@ contains
         integer :: i
         do i = 1, size(self%items)
             if (self%items(i)%key /= key) cycle
+            ! `key =` with nothing after it sets nothing (a null value): no note
+            if (all(self%items(i)%values%null)) cycle
             call self%note(key, 'given (line ' // itoa(self%items(i)%line) // ') but has ' // &
                 'no effect: ' // why)
             return
@@ -766,11 +795,13 @@ contains
                     if (v%null) then
                         continue
                     else if (v%quoted) then
-                        call self%error(key, "'" // v%text // "' is not an integer")
+                        call self%error(key, "'" // v%text // "' is not an integer" // &
+                            line_text(self%items(i)))
                     else
                         read(v%text, *, iostat=ios) var
                         if (ios /= 0) then
-                            call self%error(key, "'" // v%text // "' is not an integer")
+                            call self%error(key, "'" // v%text // "' is not an integer" // &
+                                line_text(self%items(i)))
                             var = default
                         end if
                     end if
@@ -804,12 +835,14 @@ contains
                     if (v%null) then
                         continue
                     else if (v%quoted) then
-                        call self%error(key, "'" // v%text // "' is not a logical")
+                        call self%error(key, "'" // v%text // "' is not a logical" // &
+                            line_text(self%items(i)))
                     else
                         read(v%text, *, iostat=ios) var
                         if (ios /= 0) then
                             call self%error(key, "'" // v%text // &
-                                "' is not a logical (.true. or .false.)")
+                                "' is not a logical (.true. or .false.)" // &
+                                line_text(self%items(i)))
                             var = default
                         end if
                     end if
@@ -871,14 +904,16 @@ contains
             do k = 1, n
                 associate (v => self%items(i)%values(k))
                     if (v%null) cycle
+                    shown = element_label(key, order(k), [size(var)])
                     if (len(v%text) > len(var)) then
-                        call self%error(key, "'" // v%text // "' is longer than " // &
-                            itoa(len(var)) // ' characters')
+                        call self%error(shown, "'" // v%text // "' is longer than " // &
+                            itoa(len(var)) // ' characters' // line_text(self%items(i)))
                         cycle
                     end if
                     ! (they would reach the log and every output file's stored input raw)
                     if (has_control(v%text)) then
-                        call self%error(key, "'" // v%text // "' holds a control character")
+                        call self%error(shown, "'" // v%text // "' holds a control " // &
+                            'character' // line_text(self%items(i)))
                         cycle
                     end if
                     var(order(k)) = v%text
@@ -949,25 +984,14 @@ contains
         type(nml_item_t), intent(in) :: item
         integer, intent(in) :: order(:), shp(:)
         integer, intent(inout) :: set_line(:)
-        integer :: k, d, rest, element
-        character(len=:), allocatable :: shown
+        integer :: k, element
         claimed = .true.
         do k = 1, min(size(order), size(item%values))
             if (item%values(k)%null) cycle
             element = order(k)
             if (set_line(element) == 0) cycle
-            shown = item%key
-            if (product(shp) > 1) then
-                shown = shown // '('
-                rest = element - 1
-                do d = 1, size(shp)
-                    if (d > 1) shown = shown // ','
-                    shown = shown // itoa(mod(rest, shp(d)) + 1)
-                    rest = rest / shp(d)
-                end do
-                shown = shown // ')'
-            end if
-            call self%error(shown, 'given more than once (lines ' // &
+            call self%error(element_label(item%key, element, shp), &
+                'given more than once (lines ' // &
                 itoa(set_line(element)) // ' and ' // itoa(item%line) // ')')
             claimed = .false.
             return
@@ -976,6 +1000,32 @@ contains
             if (.not. item%values(k)%null) set_line(order(k)) = item%line
         end do
     end function claim_elements
+
+    !> ` (line N)`: where an assignment is, for a message about its values.
+    function line_text(item) result(text)
+        type(nml_item_t), intent(in) :: item
+        character(len=:), allocatable :: text
+        text = ' (line ' // itoa(item%line) // ')'
+    end function line_text
+
+    !> `key(i,j)` for element (column-major index) of an array of shape shp; key alone for
+    !> a scalar.
+    function element_label(key, element, shp) result(shown)
+        character(len=*), intent(in) :: key
+        integer, intent(in) :: element, shp(:)
+        character(len=:), allocatable :: shown
+        integer :: d, rest
+        shown = key
+        if (product(shp) <= 1) return
+        shown = shown // '('
+        rest = element - 1
+        do d = 1, size(shp)
+            if (d > 1) shown = shown // ','
+            shown = shown // itoa(mod(rest, shp(d)) + 1)
+            rest = rest / shp(d)
+        end do
+        shown = shown // ')'
+    end function element_label
 
     !> Convert the tokens of one assignment into var (shape given, column-major), by the
     !> list-directed read Fortran's namelist input uses. set_line: the line that set each
@@ -990,6 +1040,7 @@ contains
         integer :: k, ios
         real(wp) :: x
         logical :: halting
+        character(len=:), allocatable :: shown, at_line
         order = self%element_order(item, shp)
         if (size(order) == 0) return
         if (size(item%values) > size(order)) then
@@ -1003,8 +1054,10 @@ contains
         do k = 1, size(item%values)
             associate (v => item%values(k))
                 if (v%null) cycle
+                shown = element_label(item%key, order(k), shp)
+                at_line = line_text(item)
                 if (v%quoted) then
-                    call self%error(item%key, "'" // v%text // "' is not a real number")
+                    call self%error(shown, "'" // v%text // "' is not a real number" // at_line)
                     cycle
                 end if
                 ! a value beyond huge() reads as Infinity and raises the overflow flag, which
@@ -1015,13 +1068,14 @@ contains
                 call ieee_set_flag(ieee_overflow, .false.)
                 call ieee_set_halting_mode(ieee_overflow, halting)
                 if (ios /= 0) then
-                    call self%error(item%key, "'" // v%text // "' is not a real number")
+                    call self%error(shown, "'" // v%text // "' is not a real number" // at_line)
                     cycle
                 end if
                 ! NaN, Infinity and overflowing values (1e400 reads as Infinity) would pass
                 ! range checks that compare false and break the code that prints them
                 if (.not. ieee_is_finite(x)) then
-                    call self%error(item%key, "'" // v%text // "' is not a finite number")
+                    call self%error(shown, "'" // v%text // "' is not a finite number" // &
+                        at_line)
                     cycle
                 end if
                 var(order(k)) = x
@@ -1054,6 +1108,11 @@ contains
         section = .false.
         do d = 1, size(shp)
             c = index(parts(d), ':')
+            if (c > 0 .and. index(parts(d)(c + 1:), ':') > 0) then
+                call self%error(item%key, '(' // item%subscript // '): a stride (lo:hi:step) ' // &
+                    'is not supported; give a range lo:hi or the elements one by one')
+                return
+            end if
             if (c == 0) then
                 read(parts(d), *, iostat=ios) lo(d)
                 hi(d) = lo(d)
@@ -1066,7 +1125,17 @@ contains
                 if (ios == 0 .and. len_trim(parts(d)(c + 1:)) > 0) &
                     read(parts(d)(c + 1:), *, iostat=ios) hi(d)
             end if
-            if (ios /= 0 .or. lo(d) < 1 .or. hi(d) > shp(d) .or. lo(d) > hi(d)) then
+            if (ios /= 0) then
+                call self%error(item%key, '(' // item%subscript // "): '" // &
+                    trim(adjustl(parts(d))) // "' is not an integer subscript or range lo:hi")
+                return
+            end if
+            if (lo(d) > hi(d)) then
+                call self%error(item%key, '(' // item%subscript // '): the range ' // &
+                    itoa(lo(d)) // ':' // itoa(hi(d)) // ' is empty (lo above hi)')
+                return
+            end if
+            if (lo(d) < 1 .or. hi(d) > shp(d)) then
                 call self%error(item%key, '(' // item%subscript // ') is outside (' // &
                     join_ints(shp) // ')')
                 return
@@ -1313,6 +1382,22 @@ contains
         write(buf, '(i0)') i
         text = trim(buf)
     end function itoa
+
+    !> text with every line ended by a new line character: a carriage return not followed
+    !> by one (old Mac files) ends a line too; CR LF (Windows) is left to the blank skipping.
+    pure function lines_ended_by_nl(text) result(out)
+        character(len=*), intent(in) :: text
+        character(len=len(text)) :: out
+        integer :: k
+        out = text
+        do k = 1, len(text)
+            if (text(k:k) /= achar(13)) cycle
+            if (k < len(text)) then
+                if (text(k + 1:k + 1) == nl) cycle
+            end if
+            out(k:k) = nl
+        end do
+    end function lines_ended_by_nl
 
     pure function to_lower(s) result(out)
         character(len=*), intent(in) :: s
