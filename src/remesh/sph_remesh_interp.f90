@@ -194,7 +194,6 @@ contains
                     do q = first(r), last(r)
                         cd(p + q - first(r) + 1, 1) = (ys(q, 1) - xj(1)) * inv_h
                         cd(p + q - first(r) + 1, 2) = (ys(q, 2) - xj(2)) * inv_h
-                        cd(p + q - first(r) + 1, 3) = 0.0_wp
                         cwt(p + q - first(r) + 1) = m4_weight(cd(p + q - first(r) + 1, 1)) * &
                             m4_weight(cd(p + q - first(r) + 1, 2))
                     end do
@@ -212,17 +211,31 @@ contains
             end do
             nloc = 0
             p = 0
-            do r = 1, n_runs
-                do q = first(r), last(r)
-                    p = p + 1
-                    dl(1, nloc + 1) = cd(p, 1)
-                    dl(2, nloc + 1) = cd(p, 2)
-                    dl(3, nloc + 1) = cd(p, 3)
-                    wl(nloc + 1) = cwt(p)
-                    al(nloc + 1) = grid%sorted(q)
-                    nloc = nloc + merge(1, 0, cwt(p) > 0.0_wp)
+            if (dim == 2) then
+                ! (no third offsets: the 2D moments, weights and scatter_2d never read them)
+                do r = 1, n_runs
+                    do q = first(r), last(r)
+                        p = p + 1
+                        dl(1, nloc + 1) = cd(p, 1)
+                        dl(2, nloc + 1) = cd(p, 2)
+                        wl(nloc + 1) = cwt(p)
+                        al(nloc + 1) = grid%sorted(q)
+                        nloc = nloc + merge(1, 0, cwt(p) > 0.0_wp)
+                    end do
                 end do
-            end do
+            else
+                do r = 1, n_runs
+                    do q = first(r), last(r)
+                        p = p + 1
+                        dl(1, nloc + 1) = cd(p, 1)
+                        dl(2, nloc + 1) = cd(p, 2)
+                        dl(3, nloc + 1) = cd(p, 3)
+                        wl(nloc + 1) = cwt(p)
+                        al(nloc + 1) = grid%sorted(q)
+                        nloc = nloc + merge(1, 0, cwt(p) > 0.0_wp)
+                    end do
+                end do
+            end if
             if (nloc == 0) then
                 ! alone in a void: everything to the nearest new particle (a fallback)
                 call nearest_new(j, q, ok)
@@ -239,27 +252,34 @@ contains
                 n_mass_fallback = n_mass_fallback + 1
             else
                 ! first-order corrected weights: the centroid kept (module header)
-                call weight_moments(dim, nloc, wl, dl, t0, t1)
-                if (dim == 2) then
-                    ! (the general solve's loops and sections were a tenth of a coarsening's
-                    ! transfer)
-                    beta(3) = 0.0_wp
-                    call solve_2x2(t1(1, 1), t1(1, 2), t1(2, 1), t1(2, 2), -t0(1), -t0(2), &
-                        beta(1), beta(2), ok)
-                else
-                    call solve_small(dim, t1, -t0, beta, ok)
-                end if
                 lowest = 0.0_wp
                 total = 0.0_wp
-                if (ok) then
-                    do p = 1, nloc
-                        cw(p) = wl(p) * (1.0_wp + beta(1) * dl(1, p) + beta(2) * dl(2, p) + &
-                            beta(3) * dl(3, p))
-                        lowest = min(lowest, cw(p))
-                        total = total + cw(p)
-                    end do
-                    ok = lowest >= 0.0_wp .and. total > 0.0_wp
+                if (dim == 2) then
+                    ! (the general solve's loops and sections were a tenth of a coarsening's
+                    ! transfer; the third axis' zeros a tenth of the rest)
+                    call weight_moments_2d(nloc, wl, dl, t0, t1)
+                    call solve_2x2(t1(1, 1), t1(1, 2), t1(2, 1), t1(2, 2), -t0(1), -t0(2), &
+                        beta(1), beta(2), ok)
+                    if (ok) then
+                        do p = 1, nloc
+                            cw(p) = wl(p) * (1.0_wp + beta(1) * dl(1, p) + beta(2) * dl(2, p))
+                            lowest = min(lowest, cw(p))
+                            total = total + cw(p)
+                        end do
+                    end if
+                else
+                    call weight_moments(dim, nloc, wl, dl, t0, t1)
+                    call solve_small(dim, t1, -t0, beta, ok)
+                    if (ok) then
+                        do p = 1, nloc
+                            cw(p) = wl(p) * (1.0_wp + beta(1) * dl(1, p) + beta(2) * dl(2, p) &
+                                + beta(3) * dl(3, p))
+                            lowest = min(lowest, cw(p))
+                            total = total + cw(p)
+                        end do
+                    end if
                 end if
+                if (ok) ok = lowest >= 0.0_wp .and. total > 0.0_wp
                 if (.not. ok) then
                     n_mass_fallback = n_mass_fallback + 1
                     cw(1:nloc) = wl(1:nloc)
@@ -418,6 +438,28 @@ contains
             t1(:, 3) = 0.0_wp
         end if
     end subroutine weight_moments
+
+    !> weight_moments in 2D: t0(1:2), t1(1:2, 1:2), the same sums in the same order; the
+    !> third row and column zero.
+    pure subroutine weight_moments_2d(n, w, d, t0, t1)
+        integer, intent(in) :: n
+        real(wp), intent(in) :: w(:), d(:, :)
+        real(wp), intent(out) :: t0(3), t1(3, 3)
+        integer :: p
+        real(wp) :: a1, a2
+        t0 = 0.0_wp
+        t1 = 0.0_wp
+        do p = 1, n
+            a1 = w(p) * d(1, p)
+            a2 = w(p) * d(2, p)
+            t0(1) = t0(1) + a1
+            t0(2) = t0(2) + a2
+            t1(1, 1) = t1(1, 1) + a1 * d(1, p)
+            t1(2, 1) = t1(2, 1) + a2 * d(1, p)
+            t1(2, 2) = t1(2, 2) + a2 * d(2, p)
+        end do
+        t1(1, 2) = t1(2, 1)
+    end subroutine weight_moments_2d
 
     !> One old particle's sums (mass m, energy e, density rho, velocity v) added into the
     !> 2D columns of its pairs al(1:n): the extensive quantities with the normalised weights
