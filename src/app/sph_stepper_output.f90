@@ -115,7 +115,7 @@ contains
         type(timestep_limits_t) :: lim
         integer :: level, max_level
         integer(i8) :: counts(3), pairs
-        real(wp) :: bytes, limit_value
+        real(wp) :: bytes, limit_value, remaining
         character(len=256) :: line
         character(len=:), allocatable :: limiting
         max_level = int(global_max(env, int(maxval(sim%p%level(1:sim%p%n_owned), &
@@ -153,9 +153,15 @@ contains
             limit_value, ' s, limited by ' // limiting // ' (CFL ', lim%cfl, ', viscous ', &
             lim%viscous, ', force ', lim%force, ')'
         call log_info(trim(line))
-        write(line, '(a,i0,a,es10.3,a)') 'check: about ', nint(max(0.0_wp, &
-            sim%cfg%run%t_end - sim%time) / limit_value, i8), ' steps to t_end = ', &
-            sim%cfg%run%t_end, ' s at that step'
+        remaining = max(0.0_wp, sim%cfg%run%t_end - sim%time)
+        ! (no count beyond an integer's range, or beyond a real's: t_end = 1e308)
+        if (remaining < 1.0e15_wp * limit_value) then
+            write(line, '(a,i0,a,es10.3,a)') 'check: about ', nint(remaining / limit_value, &
+                i8), ' steps to t_end = ', sim%cfg%run%t_end, ' s at that step'
+        else
+            write(line, '(a,es11.3e3,a)') 'check: more than 1e15 steps to t_end = ', &
+                sim%cfg%run%t_end, ' s at that step'
+        end if
         call log_info(trim(line))
         if (multires(sim)) call log_info('check: virtual particles by the ' // &
             trim(sim%cfg%refinement%virtual_rule) // ' rule (&refinement virtual_rule)')

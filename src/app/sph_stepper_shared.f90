@@ -260,6 +260,7 @@ contains
         logical, intent(in) :: active(0:)
         real(wp), intent(in) :: solid_force(:, 0:)
         real(wp) :: sums(PUSH_SUMS + 3, 0:sim%zones%n_levels - 1), push(3), near_mass
+        real(wp), allocatable :: supports(:)
         integer :: lv, n
         n = sim%zones%n_levels
         ! the particles next to virtual ones, marked again for each new neighbour list
@@ -269,8 +270,10 @@ contains
             end if
             if (.not. allocated(sim%near_virtual)) &
                 allocate(sim%near_virtual(max(sim%p%n_owned, 1)))
-            call mark_near_virtual(sim%p, sim%nl, sim%level_phys(:)%kernel%support, &
-                sim%near_virtual)
+            ! (the supports copied first: the strided section was a temporary that Debug
+            ! builds warn about at every new list)
+            supports = sim%level_phys(:)%kernel%support
+            call mark_near_virtual(sim%p, sim%nl, supports, sim%near_virtual)
             sim%near_virtual_list = sim%nl%generation
         end if
         sums = 0.0_wp

@@ -4,7 +4,7 @@
 !> used by the set-up (sph_initial, sph_walls, sph_physics, sph_reference, sph_stepper).
 module sph_domain_input
     use sph_kinds, only: wp
-    use sph_namelist, only: nml_group_t
+    use sph_namelist, only: nml_group_t, real_text
     implicit none
     private
     public :: domain_input_t, read_domain_input, check_analytic_channel
@@ -12,6 +12,10 @@ module sph_domain_input
     public :: n_faces, face_names, misfit_axis
 
     integer, parameter :: n_faces = 6, name_len = 32, path_len = 512
+    !> Largest |coordinate| of the box (m): lengths and squared distances stay finite.
+    real(wp), parameter :: MAX_COORDINATE = 1.0e30_wp
+    !> Smallest dx as a fraction of a box length (10^9 particles along an axis).
+    real(wp), parameter :: MIN_DX_FRACTION = 1.0e-9_wp
     !> Faces in input order: boundary(f), wall_velocity(:, f).
     character(len=4), parameter :: face_names(n_faces) = &
         ['xlo ', 'xhi ', 'ylo ', 'yhi ', 'zlo ', 'zhi ']
@@ -71,11 +75,14 @@ contains
         integer :: axis
         real(wp) :: length
         character(len=1) :: axis_text
+        logical :: dx_refused
 
         call grp%get_int('dimension', dom%dimension, 2, min=2, max=3, doc='2 or 3')
-        call grp%get_real_array('box_lo', dom%box_lo, 0.0_wp, unit='m', &
-            doc='lower corner of the fluid box')
-        call grp%get_real_array('box_hi', dom%box_hi, 1.0_wp, unit='m', &
+        ! (bounded so that lengths and squared distances stay far from overflow)
+        call grp%get_real_array('box_lo', dom%box_lo, 0.0_wp, min=-MAX_COORDINATE, &
+            max=MAX_COORDINATE, unit='m', doc='lower corner of the fluid box')
+        call grp%get_real_array('box_hi', dom%box_hi, 1.0_wp, min=-MAX_COORDINATE, &
+            max=MAX_COORDINATE, unit='m', &
             doc='upper corner of the fluid box; each side a whole multiple of dx')
         call grp%get_string_array('boundary', dom%boundary, 'periodic', &
             choices=[character(len=8) :: 'periodic', 'wall'], &
@@ -87,6 +94,9 @@ contains
         call grp%get_string('initial_particles', dom%initial_particles, '', &
             doc='HDF5 file of initial particles (doc/output.md); empty = the lattice')
 
+        ! a box out of range is refused above; its lengths are not checked against dx
+        if (any(abs([dom%box_lo, dom%box_hi]) > MAX_COORDINATE)) return
+        dx_refused = .false.
         do axis = 1, min(max(dom%dimension, 2), 3)
             axis_text = achar(iachar('0') + axis)
             length = dom%box_hi(axis) - dom%box_lo(axis)
@@ -107,7 +117,15 @@ contains
                         ', ' // trim(face_names(2*axis)) // ')', 'given for periodic ' // &
                         'faces, which have no wall particles to move')
             end if
-            if (dom%dx > 0.0_wp) then
+            if (dom%dx > 0.0_wp .and. dom%dx < MIN_DX_FRACTION * length) then
+                ! (length / dx would overflow the whole-multiple test; no machine holds the
+                ! lattice anyway) once, on the first such axis
+                if (.not. dx_refused) call grp%error('dx', real_text(dom%dx) // &
+                    ' m is below ' // real_text(MIN_DX_FRACTION) // ' of the box length on ' // &
+                    'axis ' // axis_text // ' (' // real_text(length) // ' m): more than ' // &
+                    '10^9 particles along it')
+                dx_refused = .true.
+            else if (dom%dx > 0.0_wp) then
                 if (.not. spacing_fits_axis(dom, dom%dx, axis)) &
                     call grp%error('dx', 'box length on axis ' // axis_text // &
                         ' must be a whole multiple of dx (the lattice must close ' // &

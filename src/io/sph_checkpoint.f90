@@ -53,7 +53,7 @@ contains
         real(wp), intent(in), optional :: dx
         !> a multi-resolution run's balance of its levels (sph_stepper: the reference mass
         !> and each level's last virtual push), stored as 'checkpoint/level_balance'
-        real(wp), intent(in), optional :: balance(:)
+        real(wp), intent(in), optional, contiguous :: balance(:)
         type(h5_file_t) :: file
         integer :: n, n_tree, k
         integer(i8) :: my_rows(1), offset, total

@@ -10,6 +10,10 @@ endif()
 # SHIPPED: one of the inputs in input/, of which only the verdict is known here
 if(SHIPPED)
     set(expects "check: memory about" "check: the input is valid")
+elseif(HUGE_T_END)
+    # t_end = 1e308: no step count beyond an integer's (or a real's) range
+    set(expects "check: more than 1e15 steps to t_end = +1\\.000E\\+308 s"
+        "check: the input is valid")
 else()
     set(expects "check: level 0: 920 particles \\(800 fluid, 120 wall\\)"
         "check: memory about" "check: first time step +1\\.320E-04 s, limited by viscous"
