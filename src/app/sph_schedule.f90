@@ -170,8 +170,14 @@ contains
 
         sched%steps_since_log = sched%steps_since_log + 1
         if (sched%log_every == 0) then
-            ! about 40 lines per run, from the first step's time step
-            sched%log_every = max(1_i8, int(sched%t_end / sim%last_limits%dt / 40.0_wp, i8))
+            ! about 40 lines per run, from the first step's time step (at most every 10^15
+            ! steps: t_end = 1e308 s over the step would overflow)
+            if (sched%t_end < 1.0e15_wp * 40.0_wp * sim%last_limits%dt) then
+                sched%log_every = max(1_i8, int(sched%t_end / sim%last_limits%dt / 40.0_wp, &
+                    i8))
+            else
+                sched%log_every = 10_i8**15
+            end if
             if (sim%step == sched%first_step + 1) then
                 write(line, '(a,es10.3,a,es10.3,a,es10.3,a,es10.3)') 'time step: dt = ', &
                     sim%last_limits%dt, ' s (limits: CFL ', sim%last_limits%cfl, &
@@ -258,9 +264,12 @@ contains
         rho = fluid_density_range(sim, env)
         ! steps left: to t_end at the current time step, or to max_steps if that comes first
         per_step = (wall_now - sched%wall_start) / real(sim%step - sched%first_step, wp)
-        remaining = per_step * max(0.0_wp, (sched%t_end - sim%time) / &
-            max(sim%last_limits%dt, tiny(1.0_wp)))
-        remaining = min(remaining, per_step * real(sched%max_steps - sim%step, wp))
+        ! (the steps to t_end capped at max_steps' before the division: t_end / dt can
+        ! overflow)
+        remaining = per_step * real(sched%max_steps - sim%step, wp)
+        if (sched%t_end - sim%time < real(sched%max_steps - sim%step, wp) * &
+                sim%last_limits%dt) remaining = per_step * max(0.0_wp, (sched%t_end - &
+                sim%time) / max(sim%last_limits%dt, tiny(1.0_wp)))
         vmax = global_max(env, local_max_speed(sim%p, sim%phys%transport_velocity))
         write(line, '(i9,es13.5,es13.5,es16.6,es14.6,a,es12.6,es14.4,es14.3)') sim%step, &
             sim%time, sim%last_limits%dt, vmax, &

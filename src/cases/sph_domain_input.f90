@@ -12,8 +12,6 @@ module sph_domain_input
     public :: n_faces, face_names, misfit_axis
 
     integer, parameter :: n_faces = 6, name_len = 32, path_len = 512
-    !> Largest |coordinate| of the box (m): lengths and squared distances stay finite.
-    real(wp), parameter :: MAX_COORDINATE = 1.0e30_wp
     !> Smallest dx as a fraction of a box length (10^9 particles along an axis).
     real(wp), parameter :: MIN_DX_FRACTION = 1.0e-9_wp
     !> Faces in input order: boundary(f), wall_velocity(:, f).
@@ -76,27 +74,26 @@ contains
         real(wp) :: length
         character(len=1) :: axis_text
         logical :: dx_refused
+        integer :: errors_before
 
         call grp%get_int('dimension', dom%dimension, 2, min=2, max=3, doc='2 or 3')
-        ! (bounded so that lengths and squared distances stay far from overflow)
-        call grp%get_real_array('box_lo', dom%box_lo, 0.0_wp, min=-MAX_COORDINATE, &
-            max=MAX_COORDINATE, unit='m', doc='lower corner of the fluid box')
-        call grp%get_real_array('box_hi', dom%box_hi, 1.0_wp, min=-MAX_COORDINATE, &
-            max=MAX_COORDINATE, unit='m', &
+        call grp%get_real_array('box_lo', dom%box_lo, 0.0_wp, unit='m', &
+            doc='lower corner of the fluid box')
+        call grp%get_real_array('box_hi', dom%box_hi, 1.0_wp, unit='m', &
             doc='upper corner of the fluid box; each side a whole multiple of dx')
         call grp%get_string_array('boundary', dom%boundary, 'periodic', &
             choices=[character(len=8) :: 'periodic', 'wall'], &
             doc='per face xlo, xhi, ylo, yhi, zlo, zhi')
         call grp%get_real_matrix('wall_velocity', dom%wall_velocity, 0.0_wp, unit='m/s', &
             doc='velocity (3 components) of each face''s wall particles')
+        errors_before = grp%n_errors
         call grp%get_real('dx', dom%dx, 0.05_wp, min_exclusive=0.0_wp, unit='m', &
             doc='particle spacing of the coarsest level')
+        ! a dx refused above is not checked against the box (its default would be)
+        dx_refused = grp%n_errors > errors_before
         call grp%get_string('initial_particles', dom%initial_particles, '', &
             doc='HDF5 file of initial particles (doc/output.md); empty = the lattice')
 
-        ! a box out of range is refused above; its lengths are not checked against dx
-        if (any(abs([dom%box_lo, dom%box_hi]) > MAX_COORDINATE)) return
-        dx_refused = .false.
         do axis = 1, min(max(dom%dimension, 2), 3)
             axis_text = achar(iachar('0') + axis)
             length = dom%box_hi(axis) - dom%box_lo(axis)
@@ -125,7 +122,7 @@ contains
                     'axis ' // axis_text // ' (' // real_text(length) // ' m): more than ' // &
                     '10^9 particles along it')
                 dx_refused = .true.
-            else if (dom%dx > 0.0_wp) then
+            else if (dom%dx > 0.0_wp .and. .not. dx_refused) then
                 if (.not. spacing_fits_axis(dom, dom%dx, axis)) &
                     call grp%error('dx', 'box length on axis ' // axis_text // &
                         ' must be a whole multiple of dx (the lattice must close ' // &

@@ -20,6 +20,8 @@ module sph_namelist
     public :: nml_file_t, nml_group_t, nml_key_t, nml_parse, real_text
 
     character(len=*), parameter :: nl = new_line('a')
+    !> Magnitudes a real value may have (besides 0): convert_reals.
+    real(wp), parameter :: MIN_MAGNITUDE = 1.0e-30_wp, MAX_MAGNITUDE = 1.0e30_wp
     character(len=*), parameter :: name_chars = &
         'abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_%'
 
@@ -1078,6 +1080,13 @@ contains
                         at_line)
                     cycle
                 end if
+                ! no key means anything beyond these magnitudes (SI units), and products,
+                ! squares and ratios of such values (h^2 / nu, t_end / dt) overflow
+                if (x /= 0.0_wp .and. (abs(x) < MIN_MAGNITUDE .or. abs(x) > MAX_MAGNITUDE)) then
+                    call self%error(shown, "'" // v%text // "' is outside the magnitudes " // &
+                        'sphremesh computes with (0, or 1e-30 to 1e30 in SI units)' // at_line)
+                    cycle
+                end if
                 var(order(k)) = x
             end associate
         end do
@@ -1208,7 +1217,8 @@ contains
             if (sign(1.0_wp, x) < 0.0_wp) text = '-0.0'
             return
         end if
-        if (abs(x) < 1.0e15_wp .and. abs(x) >= 1.0_wp) then
+        ! (positional up to a million: 1e10 reads better than 10000000000.0)
+        if (abs(x) < 1.0e7_wp .and. abs(x) >= 1.0_wp) then
             if (x == aint(x)) then
                 write(buf, '(f0.1)') x
                 text = trim(adjustl(buf))
@@ -1226,7 +1236,7 @@ contains
         buf = adjustl(buf)
         e = index(buf, 'E')
         read(buf(e + 1:), *) ex
-        if (ex >= -4 .and. ex < 15) then   ! positional form with the same digits
+        if (ex >= -4 .and. ex < 7) then   ! positional form with the same digits
             write(fmt, '(a, i0, a)') '(f40.', max(1, d - ex), ')'
             write(buf, fmt) x
             text = trim(adjustl(buf))

@@ -55,8 +55,9 @@ contains
     subroutine read_fluid_input(grp, fl)
         type(nml_group_t), intent(inout) :: grp
         type(fluid_input_t), intent(out) :: fl
-        call grp%get_real('rho0', fl%rho0, 1000.0_wp, min_exclusive=0.0_wp, unit='kg/m^3', &
-            doc='rest density')
+        ! (bounded: squares and inverse squares of densities stay finite)
+        call grp%get_real('rho0', fl%rho0, 1000.0_wp, min=1.0e-10_wp, max=1.0e10_wp, &
+            unit='kg/m^3', doc='rest density')
         call grp%get_real('nu', fl%nu, 1.0e-6_wp, min=0.0_wp, unit='m^2/s', &
             doc='kinematic viscosity')
         call grp%get_real_array('body_force', fl%body_force, 0.0_wp, unit='m/s^2', &
