@@ -308,7 +308,8 @@ contains
         integer, allocatable :: keep(:)
         character(len=32) :: number
         character(len=:), allocatable :: problem
-        logical :: out_exists
+        logical :: out_exists, out_writable
+        integer :: unit, ios
 
         mode = remesh_mode_code(mode_name)
         if (mode <= REMESH_NONE) call fatal_collective('remesh', "unknown mode '" // &
@@ -326,6 +327,18 @@ contains
                 'remeshed checkpoint is written to a new file and never replaces one; ' // &
                 'give OUT another name or remove that file')
         end if
+        ! OUT's folder must take the file (the checkpoint goes to OUT.tmp first): found out
+        ! now, not after the work
+        out_writable = .true.
+        if (env%rank == 0) then
+            open(newunit=unit, file=out_path // '.tmp', status='replace', action='write', &
+                iostat=ios)
+            out_writable = ios == 0
+            if (out_writable) close(unit, status='delete')
+        end if
+        if (global_max(env, merge(1_i8, 0_i8, .not. out_writable)) > 0) &
+            call fatal_collective('remesh', "cannot create OUT '" // out_path // "' (its " // &
+                'folder is missing or not writable); nothing done')
         call read_snapshot_header(env, in_path, time, step, dimension, n_rows, input_text, &
             stat, errmsg)
         if (stat /= 0) call fatal_collective('remesh', errmsg)

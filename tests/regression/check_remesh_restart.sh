@@ -2,7 +2,7 @@
 # Regression: run Poiseuille at L/20 briefly, refine its checkpoint offline (sphremesh
 # --remesh refine) on NP ranks and on 1 rank (the same particles, fields to round-off),
 # continue the refined checkpoint at L/40 for a few steps, and check that a restart with the
-# old dx is refused.
+# old dx is refused; an OUT that exists, is IN or cannot be created is refused.
 # usage: check_remesh_restart.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM COARSE.nml FINE.nml WORKDIR
 #        PYTHON COMPARER
 set -u
@@ -31,6 +31,14 @@ fi
 grep -q "OUT 'refined.h5' exists: .* never replaces one" exists.log || \
     fail "no message for an existing OUT:" exists.log
 cmp -s refined.h5 refined_copy.h5 || fail "a refused remesh changed refined.h5"
+# an OUT whose folder does not exist is refused before the work, with nothing written
+if run 1 --remesh refine "$checkpoint" no_such_folder/refined.h5 > folder.log 2>&1; then
+    fail "a remesh into a missing folder was accepted:" folder.log
+fi
+grep -q "cannot create OUT 'no_such_folder/refined.h5' (its folder is missing or not " \
+    folder.log || fail "no message for an OUT that cannot be created:" folder.log
+grep -q "remesh: .* -> no_such_folder" folder.log && \
+    fail "the remesh ran before OUT was found unwritable:" folder.log
 # the new particles (positions, ids, kinds) bit for bit; the fields handed on by each rank
 # for its part to round-off (sums in another order); pressure follows from the density
 "$python" "$comparer" refined.h5 refined_1.h5 --ignore rank mass density pressure velocity \
