@@ -38,6 +38,8 @@ module sph_stepper
     use sph_hdf5, only: h5_file_t, h5_write_attribute
     use sph_health, only: health_problem_t, check_particles, check_timestep, HEALTH_OK
     use sph_checkpoint, only: read_checkpoint, find_latest_checkpoint
+    use sph_read_checks, only: check_read_particles
+    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
     use sph_version, only: code_version
     use sph_zones, only: zones_t
     use sph_level_balance, only: real_fluid_mass, scale_masses
@@ -451,6 +453,13 @@ contains
                 'state (particles of finer levels and virtual particles): it continues with ' // &
                 'an input that has its &region groups (the input stored in it has them)')
         end if
+        ! values no run writes (a file edited or damaged outside sphremesh) stop here, not
+        ! later as a floating-point trap, an index out of range or a hang
+        if (.not. ieee_is_finite(sim%time)) call fatal_collective('restart', "'" // path // &
+            "': its time is not finite; refused")
+        call check_read_particles(env, sim%p, sim%zones%n_levels, size(sim%solids%list), &
+            path, stat, errmsg)
+        if (stat /= 0) call fatal_collective('restart', errmsg)
         ! the levels' balance as the checkpointed run had it (the reference mass, and for
         ! sub-cycled levels the pushes of the levels not evaluated at the next step)
         n = sim%zones%n_levels

@@ -29,6 +29,8 @@ contains
         call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, &
             sim%cfg%domain%dimension, code_version, sim%input_text, sim%snapshot_index, stat, &
             errmsg, sim%cfg%domain%dx, balance)
+        ! (stat 2: not the folder's fault)
+        if (stat == 2) call fatal_collective('checkpoint', errmsg)
         if (stat /= 0) call fatal_collective('checkpoint', errmsg // ' (&output output_dir)')
         if (all(sim%checkpoints /= path)) &
             sim%checkpoints = [character(len=512) :: sim%checkpoints, path]

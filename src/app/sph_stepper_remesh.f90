@@ -11,6 +11,7 @@ submodule (sph_stepper) sph_stepper_remesh
     use sph_disorder_measure, only: nearest_distance_sums, disorder_from_sums
     use sph_snapshot, only: read_snapshot_header, read_snapshot_rows
     use sph_checkpoint, only: write_checkpoint, stored_spacing
+    use sph_read_checks, only: check_read_particles
     use sph_remesh_driver, only: remesh_report_t, remesh_fluid, remesh_mode_code, &
         remesh_spacing_factor, fluid_mass_momentum, restore_momentum, REMESH_NONE, REMESH_SAME
     use sph_rates, only: compute_summation_density
@@ -365,6 +366,10 @@ contains
         n = int(share + merge(1_i8, 0_i8, env%rank < extra))
         offset = env%rank * share + min(int(env%rank, i8), extra)
         call read_snapshot_rows(env, in_path, sim%p, offset, n, stat, errmsg)
+        if (stat /= 0) call fatal_collective('remesh', errmsg)
+        if (.not. ieee_is_finite(time)) call fatal_collective('remesh', "'" // in_path // &
+            "': its time is not finite; refused")
+        call check_read_particles(env, sim%p, 1, size(sim%solids%list), in_path, stat, errmsg)
         if (stat /= 0) call fatal_collective('remesh', errmsg)
         sim%time = time
         sim%step = step

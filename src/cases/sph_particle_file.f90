@@ -14,7 +14,7 @@
 module sph_particle_file
     use sph_kinds, only: wp, i4, i8
     use sph_config, only: config_t
-    use sph_mpi_env, only: mpi_env_t, global_max, global_sum, broadcast_text, agreed_status
+    use sph_mpi_env, only: mpi_env_t, agreed_status
     use sph_logger, only: int_text
     use sph_particles, only: particles_t, particles_reserve, particles_clear, KIND_FLUID, &
         KIND_WALL
@@ -23,6 +23,7 @@ module sph_particle_file
     use sph_walls, only: wall_site
     use sph_eos, only: eos_pressure
     use sph_global_ids, only: find_duplicate_ids
+    use sph_read_checks, only: append_problems
     use sph_hdf5, only: h5_file_t, h5_open_read, h5_close, h5_read_rows, h5_dataset_rows, &
         h5_read_attribute, h5_attribute_exists
     use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
@@ -232,10 +233,9 @@ contains
         integer(i8), intent(in) :: offset
         type(particles_t), intent(inout) :: p
         character(len=:), allocatable, intent(inout) :: message
-        integer(i8) :: counts(n_problems), total
+        integer(i8) :: counts(n_problems)
         character(len=160) :: example(n_problems)
-        character(len=:), allocatable :: text
-        integer :: i, axis, solid, k, reporter, dim
+        integer :: i, axis, solid, dim
         real(wp) :: normal(3), distance, lo, hi
         logical :: site
 
@@ -284,15 +284,7 @@ contains
             p%rho_old(i) = p%rho(i)
             p%e_old(i) = p%e(i)
         end do
-        do k = 1, n_problems
-            total = global_sum(env, counts(k))
-            if (total == 0) cycle
-            reporter = int(-global_max(env, int(merge(-env%rank, -huge(0), counts(k) > 0), i8)))
-            text = trim(example(k))
-            call broadcast_text(env, text, reporter)
-            message = message // '; ' // int_text(total) // ' ' // trim(problem_text(k)) // &
-                ' (first: ' // text // ')'
-        end do
+        call append_problems(env, counts, example, problem_text, message)
 
     contains
 

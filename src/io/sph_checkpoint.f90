@@ -6,7 +6,7 @@
 !> rank count the rows are shared out evenly and the caller rebuilds the decomposition.
 module sph_checkpoint
     use sph_kinds, only: wp, i4, i8
-    use sph_mpi_env, only: mpi_env_t, broadcast_text
+    use sph_mpi_env, only: mpi_env_t, broadcast_text, agreed_status
     use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL, FIELD_CHECKPOINT
     use sph_domain, only: domain_t, domain_set_tree
     use sph_hdf5, only: h5_file_t, h5_open_read, h5_close, h5_group_create, h5_write_rows, &
@@ -38,7 +38,8 @@ contains
 
     !> dx, when given, is stored as the root attribute 'dx': the particle spacing of the
     !> state (after a refine or coarsen it differs from the input's &domain dx, which a
-    !> restart checks, see read_checkpoint).
+    !> restart checks, see read_checkpoint). stat 2: an owned particle of a kind no
+    !> checkpoint holds (an internal error); other failures (the file) stat 1.
     subroutine write_checkpoint(env, p, domain, path, time, step, dimension, code_version, &
                                 input_text, snapshot_index, stat, errmsg, dx, balance)
         type(mpi_env_t), intent(in) :: env
@@ -63,10 +64,13 @@ contains
         ! every owned particle is a real one (ghosts and mirrors live after n_owned), so the
         ! snapshot rows are exactly 1..n_owned in order
         n = p%n_owned
-        if (any(p%kind(1:n) /= KIND_FLUID .and. p%kind(1:n) /= KIND_WALL .and. &
-                p%kind(1:n) /= KIND_VIRTUAL)) then
-            stat = 1
-            errmsg = 'write_checkpoint: an owned particle of an unexpected kind'
+        ! (agreed over the ranks: a rank that returned alone left the others waiting in the
+        ! collective write, a hang)
+        if (agreed_status(env, merge(1, 0, any(p%kind(1:n) /= KIND_FLUID .and. &
+                p%kind(1:n) /= KIND_WALL .and. p%kind(1:n) /= KIND_VIRTUAL))) /= 0) then
+            stat = 2
+            errmsg = 'write_checkpoint: an owned particle of an unexpected kind (an ' // &
+                'internal error)'
             return
         end if
         call snapshot_begin(env, p, path, time, step, dimension, code_version, input_text, &

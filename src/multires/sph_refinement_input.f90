@@ -188,9 +188,13 @@ contains
                 return
             end if
             k = (v - dom%box_lo(ax)) / dom%dx
+            ! more than 10^9 spacings from box_lo: &domain refuses that box already (dx below
+            ! 1e-9 of its length), and no lattice check means anything there
+            if (abs(k) > 1.0e9_wp) return
             if (abs(v - (dom%box_lo(ax) + anint(k) * dom%dx)) <= lattice_tol * dom%dx) return
-            below = dom%box_lo(ax) + floor(k) * dom%dx
-            above = dom%box_lo(ax) + (floor(k) + 1.0_wp) * dom%dx
+            k = aint(k) - merge(1.0_wp, 0.0_wp, aint(k) > k)
+            below = dom%box_lo(ax) + k * dom%dx
+            above = dom%box_lo(ax) + (k + 1.0_wp) * dom%dx
             call grp%error(side // '(' // int_text(int(ax, i8)) // ')', real_text(v) // &
                 ' is not on the coarse lattice (box_lo + k dx, dx = ' // real_text(dom%dx) // &
                 '); the nearest allowed values are ' // nice(below) // ' and ' // &
@@ -358,7 +362,9 @@ contains
                     if (outer%hi(a) - outer%lo(a) >= length) cycle        ! outer spans the axis
                     if (inner%hi(a) - inner%lo(a) >= length) return       ! inner does, outer not
                     ! the image of inner whose widened lower face is nearest above outer's
-                    shift = -length * floor((inner%lo(a) - w - outer%lo(a) + tol) / length)
+                    ! (floored as a real: the ratio may exceed an integer's range)
+                    shift = (inner%lo(a) - w - outer%lo(a) + tol) / length
+                    shift = -length * (aint(shift) - merge(1.0_wp, 0.0_wp, aint(shift) > shift))
                     if (inner%hi(a) + w + shift > outer%hi(a) + tol) return
                 else
                     ! clipped to the box: a face at or beyond a wall needs no margin

@@ -1,0 +1,108 @@
+!> Checks of the particles read from a checkpoint or snapshot that a run continues from
+!> (--restart) or that --remesh remeshes: values no run writes, which would otherwise stop
+!> the run later with a floating-point trap, an index out of range or a hang (a NaN
+!> position, a zero density, a kind or solid number out of range, an id given twice: a file
+!> edited or damaged outside sphremesh). A file written by sphremesh passes (virtual
+!> particles' ids are hashes: only fluid and wall ids are checked). Collective: every rank
+!> checks its own rows, the counts are summed and the message, the same on every rank, shows
+!> the first example of each problem (from the lowest rank that has one).
+module sph_read_checks
+    use sph_kinds, only: wp, i8
+    use sph_mpi_env, only: mpi_env_t, global_sum, global_max, broadcast_text
+    use sph_logger, only: int_text
+    use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL
+    use sph_global_ids, only: find_duplicate_ids
+    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
+    implicit none
+    private
+    public :: check_read_particles, append_problems
+
+    integer, parameter :: N_PROBLEMS = 6
+    character(len=*), parameter :: PROBLEM_TEXT(N_PROBLEMS) = [character(len=72) :: &
+        'particles of a kind other than 0 (fluid), 1 (wall) or 2 (virtual)', &
+        'particles not finite (position, velocity, density, mass or energy)', &
+        'fluid or wall particles with mass <= 0 or density <= 0', &
+        'fluid or wall particles with id <= 0', &
+        'particles of a level outside the input''s levels', &
+        'wall particles of a solid the input does not have']
+
+contains
+
+    !> stat /= 0 and errmsg (naming path and every problem) when the owned particles of p
+    !> hold a problem above; n_levels and n_solids: the levels and solids of the input the
+    !> run continues with.
+    subroutine check_read_particles(env, p, n_levels, n_solids, path, stat, errmsg)
+        type(mpi_env_t), intent(in) :: env
+        type(particles_t), intent(in) :: p
+        integer, intent(in) :: n_levels, n_solids
+        character(len=*), intent(in) :: path
+        integer, intent(out) :: stat
+        character(len=:), allocatable, intent(out) :: errmsg
+        integer(i8) :: counts(N_PROBLEMS), n_duplicates, duplicate
+        character(len=160) :: example(N_PROBLEMS)
+        character(len=:), allocatable :: message
+        integer :: i
+        logical :: real_kind
+        integer(i8), allocatable :: real_ids(:)
+
+        counts = 0
+        example = ''
+        do i = 1, p%n_owned
+            real_kind = p%kind(i) == KIND_FLUID .or. p%kind(i) == KIND_WALL
+            if (.not. (real_kind .or. p%kind(i) == KIND_VIRTUAL)) call problem(1)
+            if (.not. (all(ieee_is_finite(p%x(:, i))) .and. all(ieee_is_finite(p%v(:, i))) &
+                       .and. ieee_is_finite(p%rho(i)) .and. ieee_is_finite(p%m(i)) .and. &
+                       ieee_is_finite(p%e(i)))) call problem(2)
+            if (real_kind .and. .not. (p%m(i) > 0.0_wp .and. p%rho(i) > 0.0_wp)) call problem(3)
+            ! (virtual particles carry hashed ids, of either sign, that no real one has)
+            if (real_kind .and. p%id(i) <= 0) call problem(4)
+            if (p%level(i) < 0 .or. p%level(i) >= n_levels) call problem(5)
+            if (p%kind(i) == KIND_WALL .and. (p%solid(i) < 1 .or. p%solid(i) > n_solids)) &
+                call problem(6)
+        end do
+        message = ''
+        call append_problems(env, counts, example, PROBLEM_TEXT, message)
+        real_ids = pack(p%id(1:p%n_owned), p%kind(1:p%n_owned) == KIND_FLUID .or. &
+            p%kind(1:p%n_owned) == KIND_WALL)
+        call find_duplicate_ids(env, real_ids, size(real_ids), n_duplicates, duplicate)
+        if (n_duplicates > 0) message = message // '; ' // int_text(n_duplicates) // &
+            ' fluid or wall ids given more than once (the smallest: ' // &
+            int_text(duplicate) // ')'
+        stat = merge(1, 0, len(message) > 0)   ! the same on every rank (global counts)
+        errmsg = ''
+        if (stat /= 0) errmsg = "'" // path // "' holds particles no run writes: " // &
+            message(3:) // '; refused (a file edited or damaged outside sphremesh?)'
+
+    contains
+
+        subroutine problem(which)
+            integer, intent(in) :: which
+            counts(which) = counts(which) + 1
+            if (counts(which) > 1) return
+            write(example(which), '(a,i0,a,3es14.6,a,i0,a,i0)') 'id ', p%id(i), ' at', &
+                p%x(:, i), ' m, kind ', p%kind(i), ', level ', p%level(i)
+        end subroutine problem
+    end subroutine check_read_particles
+
+    !> message // '; <count> <problem text> (first: <example>)' for every problem counted on
+    !> some rank: counts summed over the ranks, the example from the lowest rank that has one
+    !> (collective; the same message on every rank).
+    subroutine append_problems(env, counts, example, problem_text, message)
+        type(mpi_env_t), intent(in) :: env
+        integer(i8), intent(in) :: counts(:)
+        character(len=*), intent(in) :: example(:), problem_text(:)
+        character(len=:), allocatable, intent(inout) :: message
+        integer(i8) :: total
+        integer :: k, reporter
+        character(len=:), allocatable :: text
+        do k = 1, size(counts)
+            total = global_sum(env, counts(k))
+            if (total == 0) cycle
+            reporter = int(-global_max(env, int(merge(-env%rank, -huge(0), counts(k) > 0), i8)))
+            text = trim(example(k))
+            call broadcast_text(env, text, reporter)
+            message = message // '; ' // int_text(total) // ' ' // trim(problem_text(k)) // &
+                ' (first: ' // text // ')'
+        end do
+    end subroutine append_problems
+end module sph_read_checks

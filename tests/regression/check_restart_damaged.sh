@@ -1,0 +1,51 @@
+#!/usr/bin/env bash
+# Regression: a checkpoint edited or damaged outside sphremesh (a NaN position, an id given
+# twice, a kind no run writes, a zero density, a NaN time) is refused by --restart and by
+# --remesh with one message naming the file and the problem, on every rank alike (before,
+# such files stopped the run later with a floating-point trap, or hung it).
+# usage: check_restart_damaged.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM INPUT.nml WORKDIR PYTHON
+set -u
+mpiexec=$1 np_flag=$2 np=$3 extra=$4 program=$5 input=$6 work=$7 python=$8
+run() { local n=$1; shift; timeout 120 "$mpiexec" "$np_flag" "$n" $extra "$program" "$@"; }
+fail() { echo "$1"; [ -n "${2:-}" ] && cat "$2"; exit 1; }
+rm -rf "$work" && mkdir -p "$work" && cd "$work" || exit 1
+
+run "$np" "$input" > run.log 2>&1 || fail "the run failed:" run.log
+checkpoint=$(ls output/*_checkpoint_*.h5 | tail -1)
+"$python" - "$checkpoint" <<'PY' || fail "damaging the checkpoint failed"
+import shutil, sys
+import h5py
+import numpy as np
+source = sys.argv[1]
+edits = {
+    "nan_position": lambda f: f["particles/position"].__setitem__((5, 0), np.nan),
+    "repeated_id": lambda f: f["particles/id"].__setitem__(7, f["particles/id"][6]),
+    "bad_kind": lambda f: f["particles/kind"].__setitem__(13, 77),
+    "zero_density": lambda f: f["particles/density"].__setitem__(12, 0.0),
+    "nan_time": lambda f: f.attrs.__setitem__("time", np.nan),
+}
+for name, edit in edits.items():
+    shutil.copy(source, name + ".h5")
+    with h5py.File(name + ".h5", "r+") as f:
+        edit(f)
+PY
+expect() {   # expect NAME PATTERN: --restart and --remesh refuse NAME.h5 with PATTERN
+    local name=$1 pattern=$2 rc
+    run "$np" "$input" --restart "$name.h5" > "$name.restart.log" 2>&1
+    rc=$?
+    [ "$rc" -eq 1 ] || fail "--restart of $name.h5 exited with $rc, not 1:" "$name.restart.log"
+    grep -q "error in restart: '$name.h5'.*$pattern" "$name.restart.log" || \
+        fail "--restart of $name.h5 lacks '$pattern':" "$name.restart.log"
+    run "$np" --remesh coarsen "$name.h5" "$name.out.h5" > "$name.remesh.log" 2>&1
+    rc=$?
+    [ "$rc" -eq 1 ] || fail "--remesh of $name.h5 exited with $rc, not 1:" "$name.remesh.log"
+    grep -q "error in remesh: '$name.h5'.*$pattern" "$name.remesh.log" || \
+        fail "--remesh of $name.h5 lacks '$pattern':" "$name.remesh.log"
+    [ ! -e "$name.out.h5" ] || fail "--remesh of $name.h5 wrote its OUT"
+}
+expect nan_position "1 particles not finite (position, velocity, density, mass or energy)"
+expect repeated_id "1 fluid or wall ids given more than once"
+expect bad_kind "particles of a kind other than 0 (fluid), 1 (wall) or 2 (virtual).*kind 77"
+expect zero_density "fluid or wall particles with mass <= 0 or density <= 0"
+expect nan_time "its time is not finite"
+echo "damaged checkpoints refused"
