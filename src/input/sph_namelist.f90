@@ -171,8 +171,14 @@ contains
                 after_value = .false.
             case (t_value)
                 if (.not. expect_value) then
-                    call fail(tok_line, "value '" // tok // "' in &" // grp%name // &
-                        ' has no key (expected key = value)')
+                    ! a name here is a key whose '=' is missing ('key (2) 0.0', 'key 1.0')
+                    if (.not. quoted .and. is_name(tok)) then
+                        call fail(tok_line, "'" // tok // "' in &" // grp%name // &
+                            " is not followed by '=' (expected key = value)")
+                    else
+                        call fail(tok_line, "value '" // tok // "' in &" // grp%name // &
+                            ' has no key (expected key = value)')
+                    end if
                     return
                 end if
                 call add_value(tok, quoted, tok_line)
@@ -900,7 +906,7 @@ contains
             ! as convert_reals: values beyond the elements are an error, not dropped
             if (size(order) > 0 .and. size(self%items(i)%values) > size(order)) &
                 call self%error(key, itoa(size(self%items(i)%values)) // ' values for ' // &
-                    itoa(size(order)) // ' element(s)')
+                    itoa(size(order)) // ' element(s)' // missing_equals(self%items(i)))
             if (.not. claim_elements(self, self%items(i), order(1:n), [size(var)], set_line)) &
                 cycle
             do k = 1, n
@@ -971,7 +977,7 @@ contains
             call self%error(self%items(i)%key, 'a scalar takes no subscript')
         else if (size(self%items(i)%values) /= 1) then
             call self%error(self%items(i)%key, 'expects one value, got ' // &
-                itoa(size(self%items(i)%values)))
+                itoa(size(self%items(i)%values)) // missing_equals(self%items(i)))
         else
             single_value = .true.
         end if
@@ -1002,6 +1008,36 @@ contains
             if (.not. item%values(k)%null) set_line(order(k)) = item%line
         end do
     end function claim_elements
+
+    !> A name as keys are spelt: a letter, then letters, digits and underscores.
+    pure logical function is_name(token)
+        character(len=*), intent(in) :: token
+        is_name = len(token) > 0
+        if (.not. is_name) return
+        is_name = verify(token(1:1), name_chars(1:52)) == 0 .and. &
+            verify(token, name_chars(1:63)) == 0
+    end function is_name
+
+    !> For a message about an assignment's value count: when one of its values after the
+    !> first is a bare name (not T or F), most likely the next key with its '=' missing
+    !> ('dx = 1.0e-4' then 'wall_velocity (1,3) 1.0e-4' on the next line), a note saying so.
+    function missing_equals(item) result(text)
+        type(nml_item_t), intent(in) :: item
+        character(len=:), allocatable :: text
+        integer :: k
+        character(len=:), allocatable :: word
+        text = ''
+        do k = 2, size(item%values)
+            associate (v => item%values(k))
+                if (v%quoted .or. v%null) cycle
+                if (.not. is_name(v%text)) cycle
+                word = to_lower(v%text)
+                if (word == 't' .or. word == 'f' .or. word == 'true' .or. word == 'false') cycle
+                text = " ('" // v%text // "' is read as a value: is the '=' after it missing?)"
+                return
+            end associate
+        end do
+    end function missing_equals
 
     !> ` (line N)`: where an assignment is, for a message about its values.
     function line_text(item) result(text)
@@ -1047,7 +1083,7 @@ contains
         if (size(order) == 0) return
         if (size(item%values) > size(order)) then
             call self%error(item%key, itoa(size(item%values)) // ' values for ' // &
-                itoa(size(order)) // ' element(s)')
+                itoa(size(order)) // ' element(s)' // missing_equals(item))
             return
         end if
         if (present(set_line)) then
