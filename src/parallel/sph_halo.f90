@@ -109,11 +109,14 @@ contains
     end function boxes_touch
 
     !> Select ghosts among the owned particles and exchange counts, then post the data.
-    subroutine halo_build_start(halo, domain, env, p)
+    subroutine halo_build_start(halo, domain, env, p, reach_of)
         type(halo_t), intent(inout) :: halo
         type(domain_t), intent(in) :: domain
         type(mpi_env_t), intent(in) :: env
         type(particles_t), intent(inout) :: p
+        !> per owned particle, a reach of its own (at most halo%reach): it becomes a ghost
+        !> only of the regions within it
+        real(wp), intent(in), optional :: reach_of(:)
         integer :: i, k, q, peer, total, ierr
         integer, allocatable :: fill(:), peer_of_partner(:)
         real(wp) :: xs(3), lo(3), hi(3), inner_lo(3), inner_hi(3)
@@ -197,8 +200,13 @@ contains
             integer :: r
             r = halo%partner_rank(kk)
             xs = p%x(:, ii) + halo%partner_shift(:, kk)
-            lo = domain%box_lo(:, r) - halo%reach
-            hi = domain%box_hi(:, r) + halo%reach
+            if (present(reach_of)) then
+                lo = domain%box_lo(:, r) - min(reach_of(ii), halo%reach)
+                hi = domain%box_hi(:, r) + min(reach_of(ii), halo%reach)
+            else
+                lo = domain%box_lo(:, r) - halo%reach
+                hi = domain%box_hi(:, r) + halo%reach
+            end if
             reaches = all(xs(1:domain%dim) >= lo(1:domain%dim) .and. &
                 xs(1:domain%dim) <= hi(1:domain%dim))
             if (reaches .and. r == domain%rank) then
@@ -312,12 +320,13 @@ contains
 
     !> Build the halo from scratch (who sends which particles to whom) and receive the ghosts:
     !> halo_build_start, then the wait.
-    subroutine halo_build(halo, domain, env, p)
+    subroutine halo_build(halo, domain, env, p, reach_of)
         type(halo_t), intent(inout) :: halo
         type(domain_t), intent(in) :: domain
         type(mpi_env_t), intent(in) :: env
         type(particles_t), intent(inout) :: p
-        call halo_build_start(halo, domain, env, p)
+        real(wp), intent(in), optional :: reach_of(:)   !< as halo_build_start's
+        call halo_build_start(halo, domain, env, p, reach_of)
         call halo_build_finish(halo, p)
     end subroutine halo_build
 

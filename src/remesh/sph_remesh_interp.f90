@@ -126,7 +126,7 @@ contains
     !> old particles that fell back to lower order. stat 1: an old particle has no new
     !> particle within 4 h.
     subroutine transfer_accumulate(dim, h, n_old, x_old, m_old, v_old, rho_old, e_old, &
-            n_new, x_new, acc, stat, errmsg, n_mass_fallback)
+            n_new, x_new, acc, stat, errmsg, n_mass_fallback, n_isolated)
         integer, intent(in) :: dim, n_old, n_new
         real(wp), intent(in) :: h
         real(wp), intent(in) :: x_old(:, :), m_old(:), v_old(:, :), rho_old(:), e_old(:)
@@ -135,6 +135,8 @@ contains
         integer, intent(out) :: stat
         character(len=*), intent(out) :: errmsg
         integer, intent(out) :: n_mass_fallback
+        !> old particles with no new particle in their support (handed to the nearest one)
+        integer, intent(out), optional :: n_isolated
         !> an isolated old particle's one pair: negligible in its target's velocity moments
         real(wp), parameter :: ISOLATED_WEIGHT = 1.0e-30_wp, ISOLATED_REACH = 4.0_wp
         ! the columns (per new particle, packed: a pair's updates touch a few cache lines of
@@ -175,6 +177,7 @@ contains
         inv_h = 1.0_wp / h
         lost = 0
         n_mass_fallback = 0
+        if (present(n_isolated)) n_isolated = 0
         do j = 1, n_old
             xj = 0.0_wp
             xj(1:dim) = x_old(1:dim, j)
@@ -238,6 +241,7 @@ contains
             end if
             if (nloc == 0) then
                 ! alone in a void: everything to the nearest new particle (a fallback)
+                if (present(n_isolated)) n_isolated = n_isolated + 1
                 call nearest_new(j, q, ok)
                 if (.not. ok) then
                     lost = lost + 1
