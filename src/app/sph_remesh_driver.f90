@@ -105,7 +105,7 @@ module sph_remesh_driver
     implicit none
     private
     public :: remesh_report_t, remesh_fluid, remesh_mode_code, remesh_spacing_factor
-    public :: fluid_mass_momentum, restore_momentum
+    public :: fluid_mass_momentum, restore_momentum, accurate_sum
     public :: REMESH_NONE, REMESH_REFINE, REMESH_COARSEN, REMESH_SAME
 
     integer, parameter :: REMESH_NONE = 0
@@ -623,14 +623,14 @@ contains
             end if
             report%n_mass_fallback = int(global_sum(env, int(nmf, i8)))
             report%n_velocity_fallback = int(global_sum(env, int(nvf, i8)))
-            mass_new = global_sum(env, sum(p%m(1:own)))
+            mass_new = global_sum(env, accurate_sum(p%m(1:own)))
             if (present(solids)) then
                 ! the mirrors' exchange is symmetric only for plane walls: restore the total
                 ! mass exactly, scaling the densities alike (volumes unchanged)
                 scale = report%mass_before / mass_new
                 p%m(1:own) = p%m(1:own) * scale
                 p%rho(1:own) = p%rho(1:own) * scale
-                mass_new = global_sum(env, sum(p%m(1:own)))
+                mass_new = global_sum(env, accurate_sum(p%m(1:own)))
             end if
             p%v(dim + 1:, 1:own) = 0.0_wp
             ! one uniform correction over all new particles: momentum as before
@@ -961,18 +961,54 @@ contains
         momentum = totals(2:4)
     end subroutine fluid_mass_momentum
 
+    !> Mass and momentum of the particles sel of p, summed with compensation (accurate_add):
+    !> summed one by one, 10^6 equal masses came out 1.7e-11 (3D) and 3.8e-12 (2D) off their
+    !> total, and a remesh that conserves to 1e-15 was logged as changing the mass by that.
     subroutine fluid_totals(p, sel, totals)
         type(particles_t), intent(in) :: p
         logical, intent(in) :: sel(:)
         real(wp), intent(out) :: totals(4)
-        integer :: i
+        real(wp) :: lost(4)
+        integer :: i, a
         totals = 0.0_wp
+        lost = 0.0_wp
         do i = 1, size(sel)
             if (.not. sel(i)) cycle
-            totals(1) = totals(1) + p%m(i)
-            totals(2:4) = totals(2:4) + p%m(i) * p%v(:, i)
+            call accurate_add(totals(1), lost(1), p%m(i))
+            do a = 1, 3
+                call accurate_add(totals(1 + a), lost(1 + a), p%m(i) * p%v(a, i))
+            end do
         end do
+        totals = totals + lost
     end subroutine fluid_totals
+
+    !> sum + x with the rounding error of the addition kept in lost (Neumaier's compensated
+    !> summation: the result is sum + lost, exact to about one rounding whatever the count).
+    pure subroutine accurate_add(sum, lost, x)
+        real(wp), intent(inout) :: sum, lost
+        real(wp), intent(in) :: x
+        real(wp) :: t
+        t = sum + x
+        if (abs(sum) >= abs(x)) then
+            lost = lost + ((sum - t) + x)
+        else
+            lost = lost + ((x - t) + sum)
+        end if
+        sum = t
+    end subroutine accurate_add
+
+    !> The sum of values, compensated (accurate_add).
+    pure real(wp) function accurate_sum(values) result(total)
+        real(wp), intent(in) :: values(:)
+        real(wp) :: lost
+        integer :: i
+        total = 0.0_wp
+        lost = 0.0_wp
+        do i = 1, size(values)
+            call accurate_add(total, lost, values(i))
+        end do
+        total = total + lost
+    end function accurate_sum
 
     !> One uniform velocity added to the particles sel(1:size(sel)) of p (collective) so
     !> that their total momentum becomes `momentum`, their total mass being `mass`: a
@@ -983,14 +1019,17 @@ contains
         type(particles_t), intent(inout) :: p
         logical, intent(in) :: sel(:)
         real(wp), intent(in) :: momentum(3), mass
-        real(wp) :: total(3), dv(3)
-        integer :: i
+        real(wp) :: total(3), lost(3), dv(3)
+        integer :: i, a
         total = 0.0_wp
+        lost = 0.0_wp
         do i = 1, size(sel)
             if (.not. sel(i)) cycle
-            total(1:dim) = total(1:dim) + p%m(i) * p%v(1:dim, i)
+            do a = 1, dim
+                call accurate_add(total(a), lost(a), p%m(i) * p%v(a, i))
+            end do
         end do
-        total = global_sum(env, total)
+        total = global_sum(env, total + lost)
         dv = 0.0_wp
         if (mass > 0.0_wp) dv(1:dim) = (momentum(1:dim) - total(1:dim)) / mass
         do i = 1, size(sel)

@@ -13,7 +13,8 @@ submodule (sph_stepper) sph_stepper_remesh
     use sph_checkpoint, only: write_checkpoint, stored_spacing
     use sph_read_checks, only: check_read_particles
     use sph_remesh_driver, only: remesh_report_t, remesh_fluid, remesh_mode_code, &
-        remesh_spacing_factor, fluid_mass_momentum, restore_momentum, REMESH_NONE, REMESH_SAME
+        remesh_spacing_factor, fluid_mass_momentum, restore_momentum, accurate_sum, &
+        REMESH_NONE, REMESH_SAME
     use sph_rates, only: compute_summation_density
     use sph_particles, only: HALO_GHOST
     use sph_domain_input, only: misfit_axis
@@ -202,7 +203,7 @@ contains
             report%mass_passes = pass + 1
         end do
         ! the totals before the remesh
-        mass = global_sum(env, sum(sim%p%m(1:n), mask=fluid))
+        mass = global_sum(env, accurate_sum(pack(sim%p%m(1:n), fluid)))
         where (fluid) sim%p%m(1:n) = sim%p%m(1:n) * (report%mass_before / mass)
         call restore_momentum(env, sim%p%dim, sim%p, fluid, report%momentum_before, &
             report%mass_before)
