@@ -326,6 +326,16 @@ module sph_stepper
             type(mpi_env_t), intent(in) :: env
         end subroutine check_lattice_size
 
+        !> Whether `particles` (over all ranks) fit the ranks' neighbour lists and the nodes'
+        !> memory, rank0_bytes more on rank 0's (collective; sph_stepper_checks): problem
+        !> and warning (': ...' or '').
+        module subroutine fit_on_nodes(sim, env, particles, rank0_bytes, problem, warning)
+            type(simulation_t), intent(in) :: sim
+            type(mpi_env_t), intent(in) :: env
+            real(wp), intent(in) :: particles, rank0_bytes
+            character(len=:), allocatable, intent(out) :: problem, warning
+        end subroutine fit_on_nodes
+
         !> How the geometry of a checkpoint's stored input differs from cfg's ('' if it does
         !> not; sph_stepper_checks).
         module function geometry_mismatch(stored, cfg) result(text)

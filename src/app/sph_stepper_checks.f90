@@ -12,22 +12,43 @@ contains
 
     !> Stop before laying a lattice that cannot run (collective). The fluid sites of &domain
     !> dx (a lower bound of the particles: walls, bodies and finer levels add to them),
-    !> shared evenly over the ranks, must fit a rank's neighbour list, whose default-integer
-    !> entries number about the neighbours within the kernel support per particle, and
-    !> their memory, at least MIN_BYTES a particle (below every peak that bench/run
-    !> measured: 481 and 1,123 bytes in 2D and 3D at 10^6), the node's. More than the node
-    !> has available now but less than all of it: a warning. (A dx a thousand times too
-    !> small used to run until the system killed the process, with no message.)
+    !> shared evenly over the ranks, must fit (fit_on_nodes). More than the node has
+    !> available now but less than all of it: a warning. (A dx a thousand times too small
+    !> used to run until the system killed the process, with no message.)
     module procedure check_lattice_size
-        real(wp), parameter :: PI = acos(-1.0_wp), GB = 1024.0_wp**3
+        real(wp) :: sites
+        character(len=:), allocatable :: problem, warning
+        character(len=400) :: head
+        sites = lattice_sites_estimate(sim%cfg)
+        write(head, '(a,i0,a)') '&domain dx = ' // sci_text(sim%cfg%domain%dx) // &
+            ' m lays about ' // sci_text(sites) // ' fluid particles in the box, ' // &
+            sci_text(sites / real(env%nranks, wp)) // ' per rank on ', env%nranks, ' rank(s)'
+        call fit_on_nodes(sim, env, sites, 0.0_wp, problem, warning)
+        if (len(problem) > 0) call fatal_collective('set-up', trim(head) // problem // &
+            '; choose a larger dx or run on more ' // merge('ranks', 'nodes', &
+            index(problem, 'neighbour list') > 0))
+        if (len(warning) > 0) call log_warn('set-up: ' // trim(head) // warning // &
+            '; the system may stop the run')
+    end procedure check_lattice_size
+
+    !> Whether `particles` (over all ranks, shared evenly) can run (collective): problem
+    !> (': ...', '' if they can) when a rank's neighbour list, whose default-integer entries
+    !> number about the neighbours within the kernel support per particle, would pass
+    !> 2^31 - 1, or when their memory, at least MIN_BYTES a particle (below every peak that
+    !> bench/run measured: 481 and 1,123 bytes in 2D and 3D at 10^6), and rank0_bytes more
+    !> on rank 0's node exceed the smallest node's; warning (': ...') when that is more than
+    !> a node has available now.
+    module procedure fit_on_nodes
+        real(wp), parameter :: PI = acos(-1.0_wp)
         real(wp), parameter :: MIN_BYTES(3) = [200.0_wp, 400.0_wp, 900.0_wp]
-        real(wp) :: sites, per_rank, entries, ball, need, total_min, free_min
+        real(wp) :: per_rank, entries, ball, need, total_min, free_min
         integer(i8) :: total, available
         integer :: dim, on_node
-        character(len=400) :: head, text
+        character(len=16) :: text
+        problem = ''
+        warning = ''
         dim = sim%cfg%domain%dimension
-        sites = lattice_sites_estimate(sim%cfg)
-        per_rank = sites / real(env%nranks, wp)
+        per_rank = particles / real(env%nranks, wp)
         ! the neighbours within the support: the volume of its ball in spacings
         ball = sim%phys%kernel%support / sim%cfg%domain%dx
         select case (dim)
@@ -39,41 +60,52 @@ contains
             entries = 4.0_wp / 3.0_wp * PI * ball**3
         end select
         entries = per_rank * max(entries, 1.0_wp)
-        write(head, '(a,i0,a)') '&domain dx = ' // sci(sim%cfg%domain%dx) // &
-            ' m lays about ' // sci(sites) // ' fluid particles in the box, ' // &
-            sci(per_rank) // ' per rank on ', env%nranks, ' rank(s)'
-        if (entries > real(huge(0), wp)) call fatal_collective('set-up', trim(head) // &
-            ': more than a rank can hold (its neighbour list would have about ' // &
-            sci(entries) // ' entries, at most 2^31 - 1); choose a larger dx or run on ' // &
-            'more ranks')
+        if (entries > real(huge(0), wp)) then
+            problem = ': more than a rank can hold (its neighbour list would have about ' // &
+                sci_text(entries) // ' entries, at most 2^31 - 1)'
+            return
+        end if
         on_node = ranks_on_node(env)
         call node_memory_bytes(total, available)
-        need = global_max(env, per_rank * real(on_node, wp) * MIN_BYTES(dim))
+        need = per_rank * real(on_node, wp) * MIN_BYTES(dim)
+        if (env%rank == 0) need = need + rank0_bytes
+        need = global_max(env, need)
         ! the smallest node's (unknown: no limit)
         total_min = -global_max(env, -merge(real(total, wp), huge(1.0_wp), total > 0))
         free_min = -global_max(env, -merge(real(available, wp), huge(1.0_wp), available > 0))
         if (need > total_min) then
-            write(text, '(a,f0.1,a,i0,a,f0.1,a)') trim(head) // ': they need at least ', &
-                need / GB, ' GB on a node (', nint(MIN_BYTES(dim)), &
-                ' bytes a particle or more), and a node has ', total_min / GB, &
-                ' GB of memory; choose a larger dx or run on more nodes'
-            call fatal_collective('set-up', trim(text))
+            write(text, '(i0)') nint(MIN_BYTES(dim))
+            problem = ': they need at least ' // bytes_text(need) // ' on a node (' // &
+                trim(text) // ' bytes a particle or more), and a node has ' // &
+                bytes_text(total_min) // ' of memory'
         else if (need > free_min) then
-            write(text, '(a,f0.1,a,f0.1,a)') 'set-up: ' // trim(head) // &
-                ': they need at least ', need / GB, ' GB on a node, more than the ', &
-                free_min / GB, ' GB available now; the system may stop the run'
-            call log_warn(trim(text))
+            warning = ': they need at least ' // bytes_text(need) // ' on a node, more than ' // &
+                'the ' // bytes_text(free_min) // ' available now'
         end if
-    contains
-        !> x in scientific notation, two decimals, no padding.
-        function sci(x) result(t)
-            real(wp), intent(in) :: x
-            character(len=:), allocatable :: t
-            character(len=16) :: buffer
-            write(buffer, '(es10.2)') x
-            t = trim(adjustl(buffer))
-        end function sci
-    end procedure check_lattice_size
+    end procedure fit_on_nodes
+
+    !> A memory size: '12.3 GB' (GB = 1024^3 bytes), below 1 GB in MB.
+    function bytes_text(bytes) result(t)
+        real(wp), intent(in) :: bytes
+        character(len=:), allocatable :: t
+        character(len=24) :: buffer
+        if (bytes >= 1024.0_wp**3) then
+            write(buffer, '(f0.1,a)') bytes / 1024.0_wp**3, ' GB'
+        else
+            write(buffer, '(f0.1,a)') bytes / 1024.0_wp**2, ' MB'
+        end if
+        t = trim(adjustl(buffer))
+        if (t(1:1) == '.') t = '0' // t
+    end function bytes_text
+
+    !> x in scientific notation, two decimals, no padding.
+    function sci_text(x) result(t)
+        real(wp), intent(in) :: x
+        character(len=:), allocatable :: t
+        character(len=16) :: buffer
+        write(buffer, '(es10.2)') x
+        t = trim(adjustl(buffer))
+    end function sci_text
 
     !> How the geometry of a checkpoint's stored input differs from `cfg`'s ('' if it
     !> does not): the dimension, the box, the kind of every face and the &body groups.

@@ -14,7 +14,7 @@ submodule (sph_stepper) sph_stepper_remesh
     use sph_read_checks, only: check_read_particles
     use sph_remesh_driver, only: remesh_report_t, remesh_fluid, remesh_mode_code, &
         remesh_spacing_factor, fluid_mass_momentum, restore_momentum, accurate_sum, &
-        REMESH_NONE, REMESH_SAME
+        REMESH_NONE, REMESH_REFINE, REMESH_SAME
     use sph_rates, only: compute_summation_density
     use sph_particles, only: HALO_GHOST
     use sph_domain_input, only: misfit_axis
@@ -67,6 +67,17 @@ contains
             if (env%rank == 0) call log_warn_counted('remesh_spacing', &
                 'remesh: not remeshed: ' // problem)
             return
+        end if
+        ! refining again and again (every_steps with mode = 'refine') multiplies the particles
+        ! by 2^dim each time: one that the nodes cannot hold is skipped, not killed by the
+        ! system with the run's work since its last checkpoint
+        if (mode == REMESH_REFINE) then
+            problem = refine_capacity_problem(sim, env)
+            if (len(problem) > 0) then
+                if (env%rank == 0) call log_warn_counted('remesh_capacity', &
+                    'remesh: not remeshed: ' // problem // '; the run goes on at its spacing')
+                return
+            end if
         end if
         call timers_enter(sim%timers, TIMER_OTHER, previous)
         call simulation_remesh(sim, env, mode)
@@ -159,6 +170,10 @@ contains
         if (sim%phys%density_method == DENSITY_SUMMATION) call summation_masses(sim, env, report)
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
         sim%rates_stale = .true.
+        ! the health check's time-step floor is a fraction of the first step at this spacing
+        ! (a refinement shortens the viscous limit fourfold: the fifth in a run read as a
+        ! collapse of the step, 2.1e-3 -> 2.1e-6 s)
+        if (mode /= REMESH_SAME) sim%first_dt = 0.0_wp
         sim%remesh_stages = [report%seconds_positions, report%seconds_transfer, &
             global_max(env, MPI_Wtime() - t_rebuild)]
         call log_remesh(report, sim%remesh_stages, mode, dx_old, dx_new, sim%time, sim%step)
@@ -257,6 +272,32 @@ contains
             return
         end do
     end function spacing_problem
+
+    !> Why refining the fluid of sim cannot run on these ranks ('' if it can; collective):
+    !> the refined set (2^dim times the fluid) must fit the ranks' neighbour lists and the
+    !> nodes' memory (fit_on_nodes), with SERIAL_BYTES a new particle more on rank 0's node,
+    !> where the new positions are made (measured on 2 ranks, 10^6 new particles: rank 0's
+    !> peak above the other's by 81 bytes each in 2D, 45 in 3D).
+    function refine_capacity_problem(sim, env) result(problem)
+        type(simulation_t), intent(in) :: sim
+        type(mpi_env_t), intent(in) :: env
+        character(len=:), allocatable :: problem
+        real(wp), parameter :: SERIAL_BYTES(3) = [30.0_wp, 60.0_wp, 30.0_wp]
+        character(len=:), allocatable :: warning
+        character(len=16) :: before, after
+        real(wp) :: n_fluid, n_new
+        integer :: dim
+        dim = sim%cfg%domain%dimension
+        n_fluid = real(global_sum(env, int(count(sim%p%kind(1:sim%p%n_owned) == KIND_FLUID), &
+            i8)), wp)
+        n_new = 2.0_wp**dim * n_fluid
+        call fit_on_nodes(sim, env, n_new, SERIAL_BYTES(dim) * n_new, problem, warning)
+        if (len(problem) == 0) return
+        write(before, '(es10.2)') n_fluid
+        write(after, '(es10.2)') n_new
+        problem = 'refining the ' // trim(adjustl(before)) // ' fluid particles into about ' // &
+            trim(adjustl(after)) // problem
+    end function refine_capacity_problem
 
     !> The log lines of one remesh (rank 0 prints); stages as simulation_t's remesh_stages.
     subroutine log_remesh(report, stages, mode, dx_old, dx_new, time, step)
@@ -379,6 +420,12 @@ contains
         call particles_gather(sim%p, keep)
         sim%p%n_owned = size(keep)
         sim%p%n_total = sim%p%n_owned
+        if (mode == REMESH_REFINE) then
+            problem = refine_capacity_problem(sim, env)
+            if (len(problem) > 0) call fatal_collective('remesh', problem // '; run on more ' // &
+                merge('ranks', 'nodes', index(problem, 'neighbour list') > 0) // &
+                '; nothing written')
+        end if
         call log_info('remesh: ' // in_path // ' -> ' // out_path)
         call remesh_state(sim, env, mode, .true.)
         ! a verlet run continues from the rates of the remeshed state (simulation_restart)

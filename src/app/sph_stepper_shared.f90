@@ -8,6 +8,7 @@
 !> interfaces and documentation are in sph_stepper.
 submodule (sph_stepper) sph_stepper_shared
     use sph_config, only: config_to_text
+    use sph_memory, only: node_memory_bytes
     use sph_particles, only: particles_init, particles_enable, HALO_DENSITY, HALO_STRAIN
     use sph_physics, only: physics_from_config, VISCOSITY_STRAIN_RATE, WALLS_MORRIS, &
         WALL_PRESSURE_EXTRAPOLATED, stiffest_viscosity
@@ -30,7 +31,14 @@ contains
         integer :: stat, axis
         character(len=:), allocatable :: errmsg
         logical :: periodic(3)
+        integer(i8) :: total, available
 
+        ! a size given for the nodes' memory (sph_memory) must read as one, on every rank
+        call node_memory_bytes(total, available, errmsg)
+        if (global_max(env, int(merge(1, 0, len(errmsg) > 0), i8)) > 0) then
+            if (len(errmsg) == 0) errmsg = 'SPHREMESH_NODE_MEMORY is not a size on some rank'
+            call fatal_collective('set-up', errmsg)
+        end if
         sim%cfg = cfg
         sim%input_text = config_to_text(cfg)
         sim%snapshot_index = ''
