@@ -365,18 +365,37 @@ contains
         real(wp), intent(in) :: d(:, :)
         real(wp), intent(out) :: phi(:)
         logical, intent(out) :: ok
-        real(wp) :: m(10, 10), rhs(10), w, q(10)
-        integer :: k, r, nb
+        real(wp) :: m(10, 10), rhs(10), w
+        real(wp) :: q(10, n)
+        integer :: k, r, i, nb
         nb = basis_size(degree, dim)
         m = 0.0_wp
+        ! each neighbour's basis once, the moment matrix's upper triangle (it is symmetric:
+        ! the full update and a second evaluation of the basis were most of a refresh of
+        ! the virtual particles, itself a seventh of a sub-cycled multi-resolution step)
         do k = 1, n
             w = interp_weight(INTERP_M4, dim, d(:, k), 1.0_wp)
             phi(k) = w
+            ! the basis (1, d_a, d_a d_b for a <= b), written in place and read back element by
+            ! element (an array result copied as a whole stalled on the store of its elements)
+            q(1, k) = 1.0_wp
+            q(2:dim + 1, k) = d(1:dim, k)
+            if (degree >= 2) then
+                r = dim + 1
+                do i = 1, dim
+                    q(r + 1:r + dim - i + 1, k) = d(i, k) * d(i:dim, k)
+                    r = r + dim - i + 1
+                end do
+            end if
             if (.not. w > 0.0_wp) cycle
-            q = basis(degree, dim, d(:, k))
             do r = 1, nb
-                m(1:nb, r) = m(1:nb, r) + w * q(1:nb) * q(r)
+                do i = 1, r
+                    m(i, r) = m(i, r) + (w * q(i, k)) * q(r, k)
+                end do
             end do
+        end do
+        do r = 1, nb - 1
+            m(r + 1:nb, r) = m(r, r + 1:nb)
         end do
         rhs = 0.0_wp
         rhs(1) = 1.0_wp
@@ -384,8 +403,7 @@ contains
         if (.not. ok) return
         do k = 1, n
             if (.not. phi(k) > 0.0_wp) cycle   ! outside the B-spline's support
-            q = basis(degree, dim, d(:, k))
-            phi(k) = phi(k) * dot_product(rhs(1:nb), q(1:nb))
+            phi(k) = phi(k) * dot_product(rhs(1:nb), q(1:nb, k))
         end do
         ! a stencil that amplifies (one-sided sources: extrapolation) is refused, so the
         ! caller falls back to a lower degree
@@ -397,25 +415,6 @@ contains
         basis_size = 1 + dim
         if (degree >= 2) basis_size = basis_size + dim * (dim + 1) / 2
     end function basis_size
-
-    !> The polynomial basis (1, d_a, d_a d_b for a <= b) at offset d.
-    pure function basis(degree, dim, d) result(q)
-        integer, intent(in) :: degree, dim
-        real(wp), intent(in) :: d(:)
-        real(wp) :: q(10)
-        integer :: a, b, k
-        q = 0.0_wp
-        q(1) = 1.0_wp
-        q(2:dim + 1) = d(1:dim)
-        if (degree < 2) return
-        k = dim + 1
-        do a = 1, dim
-            do b = a, dim
-                k = k + 1
-                q(k) = d(a) * d(b)
-            end do
-        end do
-    end function basis
 
     !> Normalised M4 B-spline weights (zeroth order).
     pure subroutine shepard_weights(dim, n, d, phi, ok)
