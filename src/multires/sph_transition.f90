@@ -66,7 +66,7 @@ module sph_transition
     use sph_coarsen, only: coarsen_select, id_hash
     use sph_global_ids, only: id_order   ! the stable id sort (no communication)
     use sph_cell_list, only: neighbour_list_t, build_cross_list
-    use sph_interpolation_kernels, only: INTERP_M4, interp_weight, interp_support
+    use sph_interpolation_kernels, only: INTERP_M4, interp_weight, interp_support, m4_bspline
     implicit none
     private
     !> largest sum of |weights| accepted from a least-squares stencil (see the header)
@@ -374,7 +374,11 @@ contains
         ! the full update and a second evaluation of the basis were most of a refresh of
         ! the virtual particles, itself a seventh of a sub-cycled multi-resolution step)
         do k = 1, n
-            w = interp_weight(INTERP_M4, dim, d(:, k), 1.0_wp)
+            ! interp_weight(INTERP_M4, dim, d(:, k), 1.0_wp), the same product without its
+            ! dispatch (a tenth of the refresh)
+            w = m4_bspline(d(1, k))
+            if (dim >= 2) w = w * m4_bspline(d(2, k))
+            if (dim == 3) w = w * m4_bspline(d(3, k))
             phi(k) = w
             ! the basis (1, d_a, d_a d_b for a <= b), written in place and read back element by
             ! element (an array result copied as a whole stalled on the store of its elements)
