@@ -290,51 +290,73 @@ contains
         ! per level: the half kick, the time since the step began and since its middle
         real(wp) :: half(0:size(span) - 1), t(0:size(span) - 1), since_half(0:size(span) - 1)
         real(wp) :: moved2
-        integer :: i, lv
         half = 0.5_wp * span
         t = elapsed + dt
         since_half = t - half
-        moved2 = 0.0_wp
-        ! components written out: the arrays' leading extent (3) is not known to the compiler,
-        ! and a loop over it per particle cost twice the whole update
-        do i = 1, p%n_owned
-            if (.not. integrated(p%kind(i))) cycle
-            lv = p%level(i)
-            if (starts(lv)) then
-                p%x_old(1, i) = p%x(1, i)
-                p%x_old(2, i) = p%x(2, i)
-                p%x_old(3, i) = p%x(3, i)
-                if (integrate_density) then
-                    p%rho_old(i) = p%rho(i) + half(lv) * p%drhodt(i)
-                else
-                    p%rho_old(i) = p%rho(i)
-                end if
-                if (p%kind(i) /= KIND_WALL) then
-                    p%v_old(1, i) = p%v(1, i) + half(lv) * p%dvdt(1, i)
-                    p%v_old(2, i) = p%v(2, i) + half(lv) * p%dvdt(2, i)
-                    p%v_old(3, i) = p%v(3, i) + half(lv) * p%dvdt(3, i)
-                    p%e_old(i) = p%e(i) + half(lv) * p%dedt(i)
-                else
-                    p%v_old(1, i) = p%v(1, i)
-                    p%v_old(2, i) = p%v(2, i)
-                    p%v_old(3, i) = p%v(3, i)
-                    p%e_old(i) = p%e(i)
-                end if
-            end if
-            if (integrate_density) p%rho(i) = p%rho_old(i) + since_half(lv) * p%drhodt(i)
-            if (p%kind(i) == KIND_WALL) cycle
-            p%x(1, i) = p%x_old(1, i) + t(lv) * p%v_old(1, i)
-            p%x(2, i) = p%x_old(2, i) + t(lv) * p%v_old(2, i)
-            p%x(3, i) = p%x_old(3, i) + t(lv) * p%v_old(3, i)
-            p%v(1, i) = p%v_old(1, i) + since_half(lv) * p%dvdt(1, i)
-            p%v(2, i) = p%v_old(2, i) + since_half(lv) * p%dvdt(2, i)
-            p%v(3, i) = p%v_old(3, i) + since_half(lv) * p%dvdt(3, i)
-            p%e(i) = p%e_old(i) + since_half(lv) * p%dedt(i)
-            moved2 = max(moved2, p%v_old(1, i)**2 + p%v_old(2, i)**2 + p%v_old(3, i)**2)
-        end do
+        call drift_levels(p%n_owned, size(span), p%kind, p%level, starts, half, t, &
+            since_half, integrate_density, p%x, p%v, p%dvdt, p%x_old, p%v_old, p%rho, &
+            p%rho_old, p%drhodt, p%e, p%e_old, p%dedt, moved2)
         moved = dt * sqrt(moved2)
         elapsed = t
     end subroutine verlet_drift_levels
+
+    !> verlet_drift_levels' update of every owned particle (explicit shapes, choices as
+    !> merges of values: a loop the compiler vectorises; with a branch per particle it ran
+    !> 2.6 times as long per particle as verlet_drift's, a tenth of a sub-cycled
+    !> multi-resolution step). The values are those of the branches bit for bit: a merge
+    !> picks one of two computed values. A particle whose level starts its step keeps its
+    !> start (x, and the half kick of v, rho and e) in the _old fields; walls keep x, v and e.
+    subroutine drift_levels(n, n_levels, kind, level, starts, half, t, since_half, &
+            integrate_density, x, v, dvdt, x_old, v_old, rho, rho_old, drhodt, e, e_old, dedt, &
+            moved2)
+        integer, intent(in) :: n, n_levels, kind(n), level(n)
+        logical, intent(in) :: starts(0:n_levels - 1), integrate_density
+        real(wp), intent(in) :: half(0:n_levels - 1), t(0:n_levels - 1), &
+            since_half(0:n_levels - 1), dvdt(3, n), drhodt(n), dedt(n)
+        real(wp), intent(inout) :: x(3, n), v(3, n), x_old(3, n), v_old(3, n), rho(n), &
+            rho_old(n), e(n), e_old(n)
+        real(wp), intent(out) :: moved2
+        real(wp) :: hf, tl, sh, vo(3), eo, ro
+        logical :: st, active, moving
+        integer :: i, lv
+        moved2 = 0.0_wp
+        do i = 1, n
+            active = kind(i) == KIND_FLUID .or. kind(i) == KIND_VIRTUAL .or. &
+                kind(i) == KIND_WALL
+            moving = active .and. kind(i) /= KIND_WALL
+            lv = level(i)
+            st = starts(lv) .and. active
+            hf = half(lv)
+            tl = t(lv)
+            sh = since_half(lv)
+            x_old(1, i) = merge(x(1, i), x_old(1, i), st)
+            x_old(2, i) = merge(x(2, i), x_old(2, i), st)
+            x_old(3, i) = merge(x(3, i), x_old(3, i), st)
+            if (integrate_density) then
+                ro = merge(rho(i) + hf * drhodt(i), rho_old(i), st)
+            else
+                ro = merge(rho(i), rho_old(i), st)
+            end if
+            rho_old(i) = ro
+            if (integrate_density) rho(i) = merge(ro + sh * drhodt(i), rho(i), active)
+            vo(1) = merge(merge(v(1, i) + hf * dvdt(1, i), v(1, i), moving), v_old(1, i), st)
+            vo(2) = merge(merge(v(2, i) + hf * dvdt(2, i), v(2, i), moving), v_old(2, i), st)
+            vo(3) = merge(merge(v(3, i) + hf * dvdt(3, i), v(3, i), moving), v_old(3, i), st)
+            eo = merge(merge(e(i) + hf * dedt(i), e(i), moving), e_old(i), st)
+            v_old(1, i) = vo(1)
+            v_old(2, i) = vo(2)
+            v_old(3, i) = vo(3)
+            e_old(i) = eo
+            x(1, i) = merge(x_old(1, i) + tl * vo(1), x(1, i), moving)
+            x(2, i) = merge(x_old(2, i) + tl * vo(2), x(2, i), moving)
+            x(3, i) = merge(x_old(3, i) + tl * vo(3), x(3, i), moving)
+            v(1, i) = merge(vo(1) + sh * dvdt(1, i), v(1, i), moving)
+            v(2, i) = merge(vo(2) + sh * dvdt(2, i), v(2, i), moving)
+            v(3, i) = merge(vo(3) + sh * dvdt(3, i), v(3, i), moving)
+            e(i) = merge(eo + sh * dedt(i), e(i), moving)
+            moved2 = max(moved2, merge(vo(1)**2 + vo(2)**2 + vo(3)**2, 0.0_wp, moving))
+        end do
+    end subroutine drift_levels
 
     !> Before the rates of the levels that `ends` are evaluated: a level whose step took
     !> elapsed(L) instead of span(L) has its first half kick made elapsed(L) / 2 long, so
