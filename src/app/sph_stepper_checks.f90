@@ -76,8 +76,10 @@ contains
         if (need > total_min) then
             write(text, '(i0)') nint(MIN_BYTES(dim))
             problem = ': they need at least ' // bytes_text(need) // ' on a node (' // &
-                trim(text) // ' bytes a particle or more), and a node has ' // &
-                bytes_text(total_min) // ' of memory'
+                trim(text) // ' bytes a particle or more'
+            if (rank0_bytes > 0.0_wp) problem = problem // ', and ' // &
+                bytes_text(rank0_bytes) // ' more on rank 0''s'
+            problem = problem // '), and a node has ' // bytes_text(total_min) // ' of memory'
         else if (need > free_min) then
             warning = ': they need at least ' // bytes_text(need) // ' on a node, more than ' // &
                 'the ' // bytes_text(free_min) // ' available now'

@@ -69,15 +69,14 @@ contains
             return
         end if
         ! refining again and again (every_steps with mode = 'refine') multiplies the particles
-        ! by 2^dim each time: one that the nodes cannot hold is skipped, not killed by the
-        ! system with the run's work since its last checkpoint
-        if (mode == REMESH_REFINE) then
-            problem = refine_capacity_problem(sim, env)
-            if (len(problem) > 0) then
-                if (env%rank == 0) call log_warn_counted('remesh_capacity', &
-                    'remesh: not remeshed: ' // problem // '; the run goes on at its spacing')
-                return
-            end if
+        ! by 2^dim each time, and rank 0 makes every new position: a remesh that the nodes
+        ! cannot hold is skipped, not killed by the system with the run's work since its
+        ! last checkpoint
+        problem = remesh_capacity_problem(sim, env, mode)
+        if (len(problem) > 0) then
+            if (env%rank == 0) call log_warn_counted('remesh_capacity', &
+                'remesh: not remeshed: ' // problem // '; the run goes on at its spacing')
+            return
         end if
         call timers_enter(sim%timers, TIMER_OTHER, previous)
         call simulation_remesh(sim, env, mode)
@@ -273,31 +272,49 @@ contains
         end do
     end function spacing_problem
 
-    !> Why refining the fluid of sim cannot run on these ranks ('' if it can; collective):
-    !> the refined set (2^dim times the fluid) must fit the ranks' neighbour lists and the
-    !> nodes' memory (fit_on_nodes), with SERIAL_BYTES a new particle more on rank 0's node,
-    !> where the new positions are made (measured on 2 ranks, 10^6 new particles: rank 0's
-    !> peak above the other's by 81 bytes each in 2D, 45 in 3D).
-    function refine_capacity_problem(sim, env) result(problem)
+    !> Why remeshing the fluid of sim (mode) cannot run on these ranks ('' if it can;
+    !> collective): the new set must fit the ranks' neighbour lists and the nodes' memory
+    !> (fit_on_nodes), with rank 0's serial work on top, where the new positions are made
+    !> from all of the fluid. That work, measured on 2 ranks as rank 0's peak above the
+    !> other's (2D and 3D): a refinement 81 and 45 bytes per new particle, a same-level
+    !> remesh (refine, then coarsen the refined set) 976 and 3,700 bytes per particle, a
+    !> coarsening 190 and 410; the bounds below are about 70 % of those.
+    function remesh_capacity_problem(sim, env, mode) result(problem)
         type(simulation_t), intent(in) :: sim
         type(mpi_env_t), intent(in) :: env
+        integer, intent(in) :: mode
         character(len=:), allocatable :: problem
-        real(wp), parameter :: SERIAL_BYTES(3) = [30.0_wp, 60.0_wp, 30.0_wp]
-        character(len=:), allocatable :: warning
+        real(wp), parameter :: REFINE_BYTES(3) = [30.0_wp, 60.0_wp, 30.0_wp], &
+            SAME_BYTES(3) = [300.0_wp, 700.0_wp, 2600.0_wp], &
+            COARSEN_BYTES(3) = [60.0_wp, 130.0_wp, 280.0_wp]
+        character(len=:), allocatable :: warning, verb
         character(len=16) :: before, after
-        real(wp) :: n_fluid, n_new
+        real(wp) :: n_fluid, n_new, serial
         integer :: dim
         dim = sim%cfg%domain%dimension
         n_fluid = real(global_sum(env, int(count(sim%p%kind(1:sim%p%n_owned) == KIND_FLUID), &
             i8)), wp)
-        n_new = 2.0_wp**dim * n_fluid
-        call fit_on_nodes(sim, env, n_new, SERIAL_BYTES(dim) * n_new, problem, warning)
+        select case (mode)
+        case (REMESH_REFINE)
+            n_new = 2.0_wp**dim * n_fluid
+            serial = REFINE_BYTES(dim) * n_new
+            verb = 'refining'
+        case (REMESH_SAME)
+            n_new = n_fluid
+            serial = SAME_BYTES(dim) * n_fluid
+            verb = 'remeshing at the same level'
+        case default
+            n_new = n_fluid / 2.0_wp**dim
+            serial = COARSEN_BYTES(dim) * n_fluid
+            verb = 'coarsening'
+        end select
+        call fit_on_nodes(sim, env, n_new, serial, problem, warning)
         if (len(problem) == 0) return
         write(before, '(es10.2)') n_fluid
         write(after, '(es10.2)') n_new
-        problem = 'refining the ' // trim(adjustl(before)) // ' fluid particles into about ' // &
-            trim(adjustl(after)) // problem
-    end function refine_capacity_problem
+        problem = verb // ' the ' // trim(adjustl(before)) // ' fluid particles into about ' // &
+            trim(adjustl(after)) // ' (rank 0 makes their positions)' // problem
+    end function remesh_capacity_problem
 
     !> The log lines of one remesh (rank 0 prints); stages as simulation_t's remesh_stages.
     subroutine log_remesh(report, stages, mode, dx_old, dx_new, time, step)
@@ -420,12 +437,9 @@ contains
         call particles_gather(sim%p, keep)
         sim%p%n_owned = size(keep)
         sim%p%n_total = sim%p%n_owned
-        if (mode == REMESH_REFINE) then
-            problem = refine_capacity_problem(sim, env)
-            if (len(problem) > 0) call fatal_collective('remesh', problem // '; run on more ' // &
-                merge('ranks', 'nodes', index(problem, 'neighbour list') > 0) // &
-                '; nothing written')
-        end if
+        problem = remesh_capacity_problem(sim, env, mode)
+        if (len(problem) > 0) call fatal_collective('remesh', problem // '; run on more ' // &
+            merge('ranks', 'nodes', index(problem, 'neighbour list') > 0) // '; nothing written')
         call log_info('remesh: ' // in_path // ' -> ' // out_path)
         call remesh_state(sim, env, mode, .true.)
         ! a verlet run continues from the rates of the remeshed state (simulation_restart)

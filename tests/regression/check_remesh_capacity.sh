@@ -5,7 +5,8 @@
 #     (the fifth refinement used to stop the run as a collapsed step).
 #  2. With the nodes' memory given as 4 MB (SPHREMESH_NODE_MEMORY), the refinement that
 #     cannot fit is skipped with a warning and the run ends normally at its spacing.
-#  3. An unreadable SPHREMESH_NODE_MEMORY is refused at the set-up (exit 1).
+#  3. A same-level remesh whose serial work on rank 0 does not fit is skipped too; an
+#     unreadable SPHREMESH_NODE_MEMORY is refused at the set-up (exit 1).
 #  4. Offline, a refinement that cannot fit is refused before the work, OUT not written.
 # usage: check_remesh_capacity.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM INPUT WORKDIR
 set -u
@@ -24,10 +25,19 @@ SPHREMESH_NODE_MEMORY=4M run limited.nml > limited.log 2>&1 || \
     fail "with 4 MB a node: the run failed:" limited.log
 [ "$(grep -c "^remesh refine at t = " limited.log)" -eq 3 ] || \
     fail "with 4 MB a node: expected 3 refinements:" limited.log
-skipped="refining the 6.40E+03 fluid particles into about 2.56E+04: they need at least 11.2 MB"
-grep -q "remesh: not remeshed: $skipped on a node" limited.log || \
+skipped="refining the 6.40E+03 fluid particles into about 2.56E+04 (rank 0 makes their positions)"
+grep -q "remesh: not remeshed: $skipped: they need at least 11.2 MB on a node" limited.log || \
     fail "with 4 MB a node: no warning for the skipped refinement:" limited.log
 grep -q "^finished: 55 steps" limited.log || fail "with 4 MB a node: no normal end:" limited.log
+
+# a same-level remesh: rank 0's serial work (700 bytes a particle in 2D) on top of the set
+sed -e "s#output_dir = 'output'#output_dir = 'same'#" -e "s/mode = 'refine'/mode = 'same'/" \
+    "$input" > same.nml
+SPHREMESH_NODE_MEMORY=100K run same.nml > same.log 2>&1 || \
+    fail "same level, 100 KB: the run failed:" same.log
+grep -q "^remesh same at t = " same.log && fail "same level, 100 KB: remeshed:" same.log
+grep -q "not remeshed: remeshing at the same level the 1.00E+02 fluid particles" same.log || \
+    fail "same level, 100 KB: no warning:" same.log
 
 SPHREMESH_NODE_MEMORY=lots run --check "$input" > bad.log 2>&1 && \
     fail "SPHREMESH_NODE_MEMORY=lots was accepted:" bad.log
