@@ -7,7 +7,7 @@ module sph_cell_list
     implicit none
     private
     public :: neighbour_list_t, build_neighbour_list, brute_force_neighbours, cell_sort_order
-    public :: build_cross_list, cell_grid_t, bin_particles, cell_runs
+    public :: build_cross_list, cell_grid_t, bin_particles, cell_runs, cell_runs_shaped
 
     !> The binning of one build: kept with the list so a rebuild reuses its storage.
     !> Cell coordinates are taken along the axes in the order `axis`: the axis with the
@@ -237,6 +237,34 @@ contains
             end do
         end do
     end subroutine cell_runs
+
+    !> As cell_runs in 2D, each row of cells cut to row_reach(k) cells either side of xi's,
+    !> k its offset in rows (0 .. ubound(row_reach)), a row with a negative reach skipped: a
+    !> shape narrower than the square (sph_coarsen's rows and conflicts, a cross and a disc,
+    !> a quarter of the square's cells fewer). The runs come in cell_runs' order.
+    pure subroutine cell_runs_shaped(grid, xi, row_reach, first, last, n_runs)
+        type(cell_grid_t), intent(in) :: grid
+        real(wp), intent(in) :: xi(3)
+        integer, intent(in) :: row_reach(0:)
+        integer, intent(out) :: first(:), last(:), n_runs
+        integer :: c(3), lo(3), hi(3), b, k, f, l, reach
+        reach = ubound(row_reach, 1)
+        c = cell_coords(grid, xi)
+        lo = 1
+        hi = 1
+        n_runs = 0
+        do b = max(c(2) - reach, 1), min(c(2) + reach, grid%ncell(2))
+            k = abs(b - c(2))
+            if (row_reach(k) < 0) cycle
+            lo(1) = max(c(1) - row_reach(k), 1)
+            hi(1) = min(c(1) + row_reach(k), grid%ncell(1))
+            call row_run(grid, b, 1, lo, hi, f, l)
+            if (l < f) cycle
+            n_runs = n_runs + 1
+            first(n_runs) = f
+            last(n_runs) = l
+        end do
+    end subroutine cell_runs_shaped
 
     !> Room for the rows of n_query queries (an initial guess of per_query pairs each).
     subroutine reserve_rows(nl, n_query, per_query)

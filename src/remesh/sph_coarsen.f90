@@ -83,7 +83,7 @@
 !> unique (ties in the order are broken by id; a repeated id is refused).
 module sph_coarsen
     use sph_kinds, only: wp, i8
-    use sph_cell_list, only: cell_grid_t, bin_particles, cell_runs
+    use sph_cell_list, only: cell_grid_t, bin_particles, cell_runs, cell_runs_shaped
     use sph_remesh_images, only: with_periodic_images
     use sph_key_sort, only: sort_by_keys
     implicit none
@@ -473,6 +473,8 @@ contains
         integer, allocatable :: orig(:), adj_more(:)
         type(cell_grid_t) :: grid
         integer :: a, m, ntot, b, ax, row_count(3), q, r, n_runs, first(25), last(25), reach
+        integer :: k, row_reach(0:3)
+        real(wp) :: cell, gap
         integer(i8) :: dev_sum(3), dev_abs(3), dev
         real(wp) :: d(3), r2, u, scale, half, rr2, r2_near
         logical :: in_row(3)
@@ -484,6 +486,23 @@ contains
         ! r_row / 2 in 3D (49 runs of cells otherwise)
         reach = merge(3, 2, dim == 2)
         call bin_particles(xa, ntot, dim, r_row / reach, grid)
+        ! 2D: per row of cells k away, how many cells either side can hold a pair that
+        ! counts: one in a row along the run axis (|across| < half, within r_row), along the
+        ! other axis (|along| < half) or a conflict (within sqrt(rc2)); k - 1 cells is the
+        ! least distance across, L / cell + 1 cells covers any distance below L along. A
+        ! cross and a disc instead of the square: 37 cells of 49
+        if (dim == 2) then
+            cell = 1.0_wp / grid%inv_size
+            do k = 0, reach
+                gap = max(k - 1, 0) * cell
+                row_reach(k) = -1
+                if (gap < half) row_reach(k) = reach
+                if (gap < r_row) row_reach(k) = max(row_reach(k), 1 + floor(half / cell))
+                if (gap * gap < rc2) row_reach(k) = max(row_reach(k), &
+                    1 + floor(sqrt(rc2 - gap * gap) / cell))
+                row_reach(k) = min(row_reach(k), reach)
+            end do
+        end if
         allocate(ys(max(ntot, 1), 3))
         do q = 1, ntot
             ys(q, :) = xa(:, grid%sorted(q))
@@ -498,7 +517,11 @@ contains
             dev_abs = 0_i8
             row_count = 1
             r2_near = rc2
-            call cell_runs(grid, xa(:, a), reach, first, last, n_runs)
+            if (dim == 2) then
+                call cell_runs_shaped(grid, xa(:, a), row_reach(0:reach), first, last, n_runs)
+            else
+                call cell_runs(grid, xa(:, a), reach, first, last, n_runs)
+            end if
             do r = 1, n_runs
                 do q = first(r), last(r)
                     ! (2D without the third axis' zeros)
