@@ -86,15 +86,17 @@ contains
         end if
     end procedure fit_on_nodes
 
-    !> A memory size: '12.3 GB' (GB = 1024^3 bytes), below 1 GB in MB.
+    !> A memory size: '12.3 GB' (GB = 1024^3 bytes), below 1 GB in MB, below 1 MB in KB.
     function bytes_text(bytes) result(t)
         real(wp), intent(in) :: bytes
         character(len=:), allocatable :: t
         character(len=24) :: buffer
         if (bytes >= 1024.0_wp**3) then
             write(buffer, '(f0.1,a)') bytes / 1024.0_wp**3, ' GB'
-        else
+        else if (bytes >= 1024.0_wp**2) then
             write(buffer, '(f0.1,a)') bytes / 1024.0_wp**2, ' MB'
+        else
+            write(buffer, '(f0.1,a)') bytes / 1024.0_wp, ' KB'
         end if
         t = trim(adjustl(buffer))
         if (t(1:1) == '.') t = '0' // t
