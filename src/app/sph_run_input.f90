@@ -5,6 +5,7 @@ module sph_run_input
     use sph_kinds, only: wp
     use sph_namelist, only: nml_group_t
     use sph_filesystem, only: MAX_FILE_PATH
+    use sph_logger, only: sci_text
     implicit none
     private
     public :: run_input_t, output_input_t, read_run_input, read_output_input
@@ -92,9 +93,8 @@ contains
             ! (t_end <= 1e20 and an interval of at least 1e-30 s keep the count finite)
             if (t_end / out%output_interval > max_interval_snapshots) then
                 write(t_text, '(es10.3)') t_end
-                write(n_text, '(es10.2)') t_end / out%output_interval
                 call grp%error('output_interval', 'asks for about ' // &
-                    trim(adjustl(n_text)) // ' snapshots up to t_end = ' // &
+                    sci_text(t_end / out%output_interval) // ' snapshots up to t_end = ' // &
                     trim(adjustl(t_text)) // ' s; at most 100000 a run (a longer interval, ' // &
                     'or the times listed in output_times)')
             end if

@@ -3,7 +3,7 @@
 !> (A submodule of sph_stepper, as sph_stepper_shared explains; interfaces in sph_stepper.)
 submodule (sph_stepper) sph_stepper_checks
     use sph_mpi_env, only: ranks_on_node
-    use sph_logger, only: log_warn, int_text
+    use sph_logger, only: log_warn, int_text, sci_text
     use sph_initial, only: lattice_sites_estimate
     use sph_memory, only: node_memory_bytes
     implicit none
@@ -101,15 +101,6 @@ contains
         t = trim(adjustl(buffer))
         if (t(1:1) == '.') t = '0' // t
     end function bytes_text
-
-    !> x in scientific notation, two decimals, no padding.
-    function sci_text(x) result(t)
-        real(wp), intent(in) :: x
-        character(len=:), allocatable :: t
-        character(len=16) :: buffer
-        write(buffer, '(es10.2)') x
-        t = trim(adjustl(buffer))
-    end function sci_text
 
     !> How the geometry of a checkpoint's stored input differs from `cfg`'s ('' if it
     !> does not): the dimension, the box, the kind of every face and the &body groups.

@@ -4,7 +4,7 @@
 !> Split from sph_stepper so that each file holds one concern; the interfaces and their
 !> documentation are in sph_stepper.
 submodule (sph_stepper) sph_stepper_remesh
-    use sph_logger, only: log_warn_counted, log_warn
+    use sph_logger, only: log_warn_counted, log_warn, sci_text
     use sph_particles, only: particles_init, particles_free, particles_append
     use sph_physics, only: physics_from_config
     use sph_walls, only: solids_from_config
@@ -288,7 +288,6 @@ contains
             SAME_BYTES(3) = [300.0_wp, 700.0_wp, 2600.0_wp], &
             COARSEN_BYTES(3) = [60.0_wp, 130.0_wp, 280.0_wp]
         character(len=:), allocatable :: warning, verb
-        character(len=16) :: before, after
         real(wp) :: n_fluid, n_new, serial
         integer :: dim
         dim = sim%cfg%domain%dimension
@@ -310,10 +309,8 @@ contains
         end select
         call fit_on_nodes(sim, env, n_new, serial, problem, warning)
         if (len(problem) == 0) return
-        write(before, '(es10.2)') n_fluid
-        write(after, '(es10.2)') n_new
-        problem = verb // ' the ' // trim(adjustl(before)) // ' fluid particles into about ' // &
-            trim(adjustl(after)) // ' (rank 0 makes their positions)' // problem
+        problem = verb // ' the ' // sci_text(n_fluid) // ' fluid particles into about ' // &
+            sci_text(n_new) // ' (rank 0 makes their positions)' // problem
     end function remesh_capacity_problem
 
     !> The log lines of one remesh (rank 0 prints); stages as simulation_t's remesh_stages.

@@ -1,12 +1,12 @@
 !> Rank-0 logger with levels. Repeated warnings are counted under a key and summarised once,
 !> so a per-particle condition never floods the log.
 module sph_logger
-    use, intrinsic :: iso_fortran_env, only: output_unit, error_unit, int64
+    use, intrinsic :: iso_fortran_env, only: output_unit, error_unit, int64, real64
     implicit none
     private
     public :: VERBOSITY_QUIET, VERBOSITY_INFO, VERBOSITY_DEBUG
     public :: logger_init, log_info, log_debug, log_warn, log_warn_counted, log_warning_summary
-    public :: logger_is_root, int_text
+    public :: logger_is_root, int_text, sci_text
 
     integer, parameter :: VERBOSITY_QUIET = 0, VERBOSITY_INFO = 1, VERBOSITY_DEBUG = 2
     integer, parameter :: max_keys = 64
@@ -95,4 +95,13 @@ contains
         write(buffer, '(i0)') value
         text = trim(buffer)
     end function int_text
+
+    !> A real in scientific notation with two decimals, without padding, for messages.
+    function sci_text(value) result(text)
+        real(real64), intent(in) :: value
+        character(len=:), allocatable :: text
+        character(len=16) :: buffer
+        write(buffer, '(es10.2)') value
+        text = trim(adjustl(buffer))
+    end function sci_text
 end module sph_logger
