@@ -321,8 +321,7 @@ contains
         integer :: i, lv
         moved2 = 0.0_wp
         do i = 1, n
-            active = kind(i) == KIND_FLUID .or. kind(i) == KIND_VIRTUAL .or. &
-                kind(i) == KIND_WALL
+            active = integrated(kind(i))
             moving = active .and. kind(i) /= KIND_WALL
             lv = level(i)
             st = starts(lv) .and. active
