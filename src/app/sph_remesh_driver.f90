@@ -541,8 +541,8 @@ contains
             type(halo_t) :: halo
             real(wp), allocatable :: xo(:, :), xs(:, :), acc(:, :)
             integer, allocatable :: orig_o(:), orig_n(:)
-            integer :: no, ns, i, nmf, nvf, own, attempt, n_isolated
-            logical :: ok
+            integer :: no, ns, i, nmf, nvf, own, n_isolated
+            logical :: ok, full_reach
             real(wp) :: h, reach, scale, mass_new
             character(len=200) :: text
             st = 0
@@ -581,14 +581,13 @@ contains
             ! sums from the old particles this rank owns (the ghosts' columns to their owners
             ! below): first with the ghosts that pairs within the support need (module
             ! header), again with all within the full reach when some old particle is isolated
-            do attempt = 1, 2
-                if (attempt == 1 .and. present(all_ghosts)) then
-                    if (all_ghosts) cycle
-                end if
-                if (attempt == 1) then
-                    call halo_build(halo, parts, env, p, ghost_reaches())
-                else
+            full_reach = .false.
+            if (present(all_ghosts)) full_reach = all_ghosts
+            do
+                if (full_reach) then
                     call halo_build(halo, parts, env, p)
+                else
+                    call halo_build(halo, parts, env, p, ghost_reaches(h))
                 end if
                 ns = p%n_total
                 call relative_to(box_lo, p%x, ns, xs, orig_n)
@@ -600,7 +599,8 @@ contains
                 call transfer_accumulate(dim, h, no, xo, old%m(orig_o(1:no)), &
                     old%v(:, orig_o(1:no)), old%rho(orig_o(1:no)), old%e(orig_o(1:no)), ns, &
                     xs, acc, st, text, nmf, n_isolated)
-                if (global_sum(env, int(n_isolated, i8)) == 0) exit
+                if (full_reach .or. global_sum(env, int(n_isolated, i8)) == 0) exit
+                full_reach = .true.
             end do
             ! a failure anywhere stops every rank (the caller's refused() agrees on it); p is
             ! then put back: this rank's old fluid in the transfer's decomposition, its others
@@ -655,11 +655,10 @@ contains
         !> (within MIRROR_REACH h) NEW_REACH_SOLIDS h, for its mirrors (module header). The
         !> full reach took each rank's ghosts up to 2 h + 6 h away: in 3D on 2 ranks about
         !> twice as many ghosts as owned new particles.
-        function ghost_reaches() result(r)
+        function ghost_reaches(hh) result(r)
+            real(wp), intent(in) :: hh   !< the transfer's spacing h
             real(wp), allocatable :: r(:)
-            real(wp) :: hh
             integer :: i, s
-            hh = max(dx, dx * remesh_spacing_factor(mode))
             allocate(r(p%n_owned))
             r = PAIR_REACH * hh
             if (.not. present(solids)) return
