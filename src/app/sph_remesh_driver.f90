@@ -139,6 +139,9 @@ module sph_remesh_driver
         real(wp) :: seconds_positions = 0.0_wp, seconds_transfer = 0.0_wp
         integer :: n_irregular = 0                   !< refinement: cells without a centre
         integer :: n_mass_fallback = 0, n_velocity_fallback = 0   !< transfer fallbacks
+        !> of the mass fallbacks, old particles with no new one in their support (each handed
+        !> to its nearest, the transfer's ghosts then taken at the full reach)
+        integer :: n_isolated = 0
         integer :: relax_passes = 0                  !< relaxation passes made (coarsen, same)
         !> summation density (set by the caller, sph_stepper_remesh): passes of the fluid
         !> masses' adjustment, and the largest |kernel sum / handed-on density - 1| of a fluid
@@ -623,6 +626,7 @@ contains
             end if
             report%n_mass_fallback = int(global_sum(env, int(nmf, i8)))
             report%n_velocity_fallback = int(global_sum(env, int(nvf, i8)))
+            report%n_isolated = int(global_sum(env, int(n_isolated, i8)))
             mass_new = global_sum(env, accurate_sum(p%m(1:own)))
             if (present(solids)) then
                 ! the mirrors' exchange is symmetric only for plane walls: restore the total

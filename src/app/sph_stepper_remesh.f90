@@ -344,9 +344,10 @@ contains
             ' us per particle): new positions', stages(1), ' s, transfer', stages(2), &
             ' s, walls and neighbours', stages(3), ' s'
         call log_info(trim(line))
-        write(line, '(a,i0,a,i0,a,i0,a,i0)') '  irregular cells ', report%n_irregular, &
-            ', transfer fallbacks: mass ', report%n_mass_fallback, ', velocity ', &
-            report%n_velocity_fallback, '; relaxation passes ', report%relax_passes
+        write(line, '(a,i0,a,i0,a,i0,a,i0,a,i0)') '  irregular cells ', report%n_irregular, &
+            ', transfer fallbacks: mass ', report%n_mass_fallback, ' (isolated ', &
+            report%n_isolated, '), velocity ', report%n_velocity_fallback, &
+            '; relaxation passes ', report%relax_passes
         call log_info(trim(line))
         if (report%mass_passes < 0) return
         write(line, '(a,i0,a,es9.2,a,es9.2,a)') '  summation density: fluid masses adjusted in ', &
