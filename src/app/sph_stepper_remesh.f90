@@ -405,19 +405,22 @@ contains
         ! a file remeshed before carries its spacing; its stored input has the original dx
         dx_file = stored_spacing(env, in_path)
         if (dx_file > 0.0_wp) cfg%domain%dx = dx_file
+        ! the remeshing rules take one spacing: the levels of a multi-resolution state would be
+        ! mixed into one set (a two-level channel refined gave 2020 particles where 2000 were
+        ! due, 7380 irregular cells). Every &region has a level >= 1: one region is two levels.
+        ! (Refused before the spacing's warning below, which would not apply.)
+        if (allocated(cfg%regions)) then
+            if (size(cfg%regions) > 0) call fatal_collective('remesh', "IN '" // in_path // &
+                "' holds a multi-resolution state (its stored input has &region groups): " // &
+                '--remesh takes a single-resolution state (the resolution of regions is set ' // &
+                'by their &region groups, doc/multiresolution.md); nothing written')
+        end if
         ! OUT is still written (its particles are what the rules make, for study), but no run
         ! can continue it: say so before the work
         problem = spacing_problem(cfg, mode)
         if (len(problem) > 0) call log_warn('remesh: ' // problem // ': no run can continue ' // &
             'OUT at that spacing (it is written for study)')
         call setup_common(sim, env, cfg)
-        ! the remeshing rules take one spacing: the levels of a multi-resolution state would be
-        ! mixed into one set (a two-level channel refined gave 2020 particles where 2000 were
-        ! due, 7380 irregular cells)
-        if (multires(sim)) call fatal_collective('remesh', "IN '" // in_path // "' holds a " // &
-            'multi-resolution state (its stored input has &region groups): --remesh takes a ' // &
-            'single-resolution state (the resolution of regions is set by their &region ' // &
-            'groups, doc/multiresolution.md); nothing written')
         share = n_rows / env%nranks
         extra = mod(n_rows, int(env%nranks, i8))
         n = int(share + merge(1_i8, 0_i8, env%rank < extra))

@@ -3,7 +3,8 @@
 # state. A two-level channel (input/poiseuille_multires.nml, to 0.002 s) is continued with an
 # input without &region groups (before: the fine and virtual particles ran as one level, no
 # word said) and remeshed offline (before: both levels mixed into one set, 2020 particles and
-# 7380 irregular cells); both stop with a message, and the remesh writes nothing.
+# 7380 irregular cells); both stop with a message, and the remesh writes nothing. A coarsening
+# is refused with that message alone.
 # usage: check_multires_refusals.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM MULTIRES.nml UNIFORM.nml
 #        WORKDIR
 set -u
@@ -29,4 +30,13 @@ fi
 grep -q "error in remesh: IN '.*' holds a multi-resolution state" remesh.log || \
     fail "no message for the remesh:" remesh.log
 [ ! -e refined.h5 ] || fail "the refused remesh wrote refined.h5"
+# coarsened, the channel's period would be too short for the new spacing: the refusal comes
+# first, alone (before, a warning about that spacing came ahead of it)
+if run "$np" --remesh coarsen "$checkpoint" coarse.h5 > coarsen.log 2>&1; then
+    fail "a two-level checkpoint was coarsened:" coarsen.log
+fi
+grep -q "error in remesh: IN '.*' holds a multi-resolution state" coarsen.log || \
+    fail "no message for the coarsening:" coarsen.log
+if grep -q "warning" coarsen.log; then fail "a warning came with the refusal:" coarsen.log; fi
+[ ! -e coarse.h5 ] || fail "the refused coarsening wrote coarse.h5"
 echo "a two-level checkpoint: uniform restart and --remesh refused"
