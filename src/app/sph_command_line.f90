@@ -12,6 +12,9 @@ module sph_command_line
         character(len=:), allocatable :: restart_from   !< checkpoint file or directory, '' = none
         !> --remesh MODE IN OUT: remesh a snapshot or checkpoint offline ('' = not asked)
         character(len=:), allocatable :: remesh_mode, remesh_in, remesh_out
+        !> --regions INPUT.nml with --remesh refine: refine only the &region groups of that
+        !> input in the uniform state IN, OUT a multi-resolution checkpoint ('' = not asked)
+        character(len=:), allocatable :: regions_input
     end type options_t
 
 contains
@@ -31,6 +34,7 @@ contains
         opts%remesh_mode = ''
         opts%remesh_in = ''
         opts%remesh_out = ''
+        opts%regions_input = ''
         n = command_argument_count()
         i = 1
         do while (i <= n)
@@ -43,25 +47,13 @@ contains
             case ('--check')
                 opts%check_only = .true.
             case ('--restart')
-                if (i == n) then
-                    stat = 1
-                    errmsg = '--restart needs a checkpoint file or a directory of checkpoints'
-                    return
-                end if
-                i = i + 1
-                if (len(opts%restart_from) > 0) then
-                    stat = 1
-                    errmsg = "--restart given twice ('" // opts%restart_from // "' and '" // &
-                        argument(i) // "')"
-                    return
-                end if
-                opts%restart_from = argument(i)
-                if (len_trim(opts%restart_from) == 0) then
-                    stat = 1
-                    errmsg = '--restart needs a checkpoint file or a directory of ' // &
-                        'checkpoints, not an empty argument'
-                    return
-                end if
+                call option_value(i, n, arg, 'a checkpoint file or a directory of ' // &
+                    'checkpoints', opts%restart_from, stat, errmsg)
+                if (stat /= 0) return
+            case ('--regions')
+                call option_value(i, n, arg, 'an input file with &region groups', &
+                    opts%regions_input, stat, errmsg)
+                if (stat /= 0) return
             case ('--remesh')
                 if (i + 3 > n) then
                     stat = 1
@@ -115,6 +107,12 @@ contains
                 'continue from it with a second command, sphremesh INPUT.nml --restart OUT)'
             return
         end if
+        if (len(opts%regions_input) > 0 .and. opts%remesh_mode /= 'refine') then
+            stat = 1
+            errmsg = '--regions goes with --remesh refine IN OUT (it refines the regions of ' // &
+                'its input in the uniform state IN)'
+            return
+        end if
         if (opts%check_only .and. len(opts%restart_from) > 0) then
             stat = 1
             errmsg = '--check sets up a fresh run and takes no --restart'
@@ -134,6 +132,33 @@ contains
         end if
     end subroutine parse_command_line
 
+    !> The value of option `name` (argument i, at most n) into value, i moved onto it: it
+    !> must be there, not empty, and not given before ('' = not yet).
+    subroutine option_value(i, n, name, what, value, stat, errmsg)
+        integer, intent(inout) :: i
+        integer, intent(in) :: n
+        character(len=*), intent(in) :: name, what
+        character(len=:), allocatable, intent(inout) :: value
+        integer, intent(out) :: stat
+        character(len=:), allocatable, intent(inout) :: errmsg
+        stat = 1
+        if (i == n) then
+            errmsg = name // ' needs ' // what
+            return
+        end if
+        i = i + 1
+        if (len(value) > 0) then
+            errmsg = name // " given twice ('" // value // "' and '" // argument(i) // "')"
+            return
+        end if
+        value = argument(i)
+        if (len_trim(value) == 0) then
+            errmsg = name // ' needs ' // what // ', not an empty argument'
+            return
+        end if
+        stat = 0
+    end subroutine option_value
+
     function argument(i) result(arg)
         integer, intent(in) :: i
         character(len=:), allocatable :: arg
@@ -151,6 +176,8 @@ contains
             'usage: mpirun -np N sphremesh INPUT.nml [--restart CHECKPOINT.h5|DIR]' // nl // &
             '       mpirun -np N sphremesh --check INPUT.nml' // nl // &
             '       mpirun -np N sphremesh --remesh refine|coarsen|same IN.h5 OUT.h5' // nl // &
+            '       mpirun -np N sphremesh --remesh refine IN.h5 OUT.h5 --regions INPUT.nml' // &
+            nl // &
             '       sphremesh --help | --version' // nl // nl // &
             'Smoothed Particle Hydrodynamics for low-Reynolds-number, nearly incompressible' // &
             nl // 'flows, configured by a Fortran namelist file (see doc/input.md and ' // &
@@ -171,6 +198,12 @@ contains
             '                     dx/2, coarsen: 2 dx, same: same dx) into checkpoint OUT;' // &
             nl // &
             '                     continue with --restart OUT and &domain dx = the new dx' // &
+            nl // &
+            '  --regions INPUT.nml  with --remesh refine: refine only the &region groups of' // &
+            nl // &
+            '                     INPUT.nml in the uniform checkpoint IN; OUT is a' // nl // &
+            '                     multi-resolution checkpoint: continue with' // nl // &
+            '                     sphremesh INPUT.nml --restart OUT' // &
             nl // nl // &
             'namelist groups: &run &output &domain &fluid &numerics &parallel &restart' // nl // &
             '                 &health &remesh &body &refinement &region (see doc/input.md)' // &

@@ -57,6 +57,7 @@ module sph_stepper
     public :: simulation_analytic_error, simulation_prepare_neighbours, simulation_free
     public :: simulation_restart, simulation_write_checkpoint, simulation_write_snapshot
     public :: fluid_density_range, simulation_remesh, simulation_remesh_file
+    public :: simulation_refine_regions_file
     public :: simulation_log_levels, simulation_neighbours_per_particle
     public :: simulation_synchronised
 
@@ -244,6 +245,20 @@ module sph_stepper
             type(mpi_env_t), intent(in) :: env
             character(len=*), intent(in) :: mode_name, in_path, out_path
         end subroutine simulation_remesh_file
+
+        !> Offline refinement of regions (sphremesh --remesh refine IN.h5 OUT.h5 --regions
+        !> INPUT.nml, collective): the uniform checkpoint IN continued with cfg (INPUT.nml,
+        !> read from regions_path, with its &region groups) as a restart would continue it,
+        !> its regions refined (refine_if_uniform), written as the multi-resolution checkpoint
+        !> OUT at IN's time and step, INPUT.nml stored in it: sphremesh INPUT.nml --restart
+        !> OUT continues from it. Refused (nothing written): an input without &region groups,
+        !> an IN that is multi-resolution already, an OUT that exists.
+        module subroutine simulation_refine_regions_file(env, cfg, regions_path, in_path, &
+                out_path)
+            type(mpi_env_t), intent(in) :: env
+            type(config_t), intent(in) :: cfg
+            character(len=*), intent(in) :: regions_path, in_path, out_path
+        end subroutine simulation_refine_regions_file
     end interface
 
     ! Reports and output files: forces, snapshots, checkpoints, the check report, the levels'
@@ -255,6 +270,14 @@ module sph_stepper
             type(simulation_t), intent(inout) :: sim
             type(mpi_env_t), intent(in) :: env
         end subroutine simulation_write_checkpoint
+
+        !> What a checkpoint holds of the levels' balance of a multi-resolution run (the
+        !> reference mass, the virtual pushes and their mass; sph_checkpoint); unallocated for
+        !> one level.
+        module subroutine checkpoint_balance(sim, balance)
+            type(simulation_t), intent(in) :: sim
+            real(wp), allocatable, intent(out) :: balance(:)
+        end subroutine checkpoint_balance
 
         !> Force of the fluid on every solid (xyz, pressure|viscous, solid) from the rates of the
         !> step's second stage, the ones that advanced it (collective).
@@ -533,6 +556,9 @@ contains
         sim%next_id = global_max_id(env, sim%p%id, sim%p%n_owned)
         call refine_uniform_state(env, sim%cfg, sim%level_phys, sim%solids, sim%domain, &
             sim%zones, sim%p, sim%next_id)
+        ! the checkpoint's rates (a verlet run's) are those of the uniform state: the new
+        ! particles have none
+        sim%rates_stale = .true.
         call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
         call migrate(sim, env)
         write(line, '(a,i0,a,i0,a)') 'restart: the checkpoint is uniform; its regions were ' // &

@@ -23,9 +23,7 @@ contains
         call synchronise(sim, env)
         path = checkpoint_filename(trim(sim%cfg%output%output_dir), trim(sim%cfg%run%case_name), &
             sim%step)
-        ! the levels' balance of a multi-resolution run (left unallocated: not present)
-        if (multires(sim) .and. allocated(sim%level_push)) balance = [sim%reference_mass, &
-            reshape(sim%level_push, [size(sim%level_push)]), sim%level_push_mass]
+        call checkpoint_balance(sim, balance)
         call write_checkpoint(env, sim%p, sim%domain, path, sim%time, sim%step, &
             sim%cfg%domain%dimension, code_version, sim%input_text, sim%snapshot_index, stat, &
             errmsg, sim%cfg%domain%dx, balance)
@@ -40,6 +38,12 @@ contains
         end do
         call log_info('checkpoint: ' // path)
     end procedure simulation_write_checkpoint
+
+    module procedure checkpoint_balance
+        ! (left unallocated: not present)
+        if (multires(sim) .and. allocated(sim%level_push)) balance = [sim%reference_mass, &
+            reshape(sim%level_push, [size(sim%level_push)]), sim%level_push_mass]
+    end procedure checkpoint_balance
 
     module procedure simulation_solid_forces
         forces = reshape(global_sum(env, reshape(sim%wall_forces, [size(sim%wall_forces)])), &

@@ -366,37 +366,11 @@ contains
         integer, allocatable :: keep(:)
         character(len=32) :: number
         character(len=:), allocatable :: problem
-        logical :: out_exists, out_writable
-        integer :: unit, ios
 
         mode = remesh_mode_code(mode_name)
         if (mode <= REMESH_NONE) call fatal_collective('remesh', "unknown mode '" // &
             mode_name // "' (refine, coarsen or same)")
-        ! OUT is always a new file: a remesh never replaces one (IN itself, or a checkpoint
-        ! the user still needs); rank 0 looks, every rank stops alike
-        out_exists = .false.
-        if (env%rank == 0) inquire(file=out_path, exist=out_exists)
-        if (global_max(env, merge(1_i8, 0_i8, out_exists)) > 0) then
-            if (out_path == in_path) then
-                call fatal_collective('remesh', "OUT '" // out_path // "' is IN: the " // &
-                    'remeshed checkpoint is written to a new file; give OUT another name')
-            end if
-            call fatal_collective('remesh', "OUT '" // out_path // "' exists: the " // &
-                'remeshed checkpoint is written to a new file and never replaces one; ' // &
-                'give OUT another name or remove that file')
-        end if
-        ! OUT's folder must take the file (the checkpoint goes to OUT.tmp first): found out
-        ! now, not after the work
-        out_writable = .true.
-        if (env%rank == 0) then
-            open(newunit=unit, file=out_path // '.tmp', status='replace', action='write', &
-                iostat=ios)
-            out_writable = ios == 0
-            if (out_writable) close(unit, status='delete')
-        end if
-        if (global_max(env, merge(1_i8, 0_i8, .not. out_writable)) > 0) &
-            call fatal_collective('remesh', "cannot create OUT '" // out_path // "' (its " // &
-                'folder is missing or not writable); nothing done')
+        call check_out_path(env, in_path, out_path)
         call read_snapshot_header(env, in_path, time, step, dimension, n_rows, input_text, &
             stat, errmsg)
         if (stat /= 0) call fatal_collective('remesh', errmsg)
@@ -453,4 +427,77 @@ contains
         call log_info('remesh: checkpoint ' // out_path // ' written; continue with ' // &
             '--restart ' // out_path // ' and &domain dx = ' // trim(adjustl(number)))
     end procedure simulation_remesh_file
+
+    module procedure simulation_refine_regions_file
+        type(simulation_t) :: sim
+        type(config_t) :: stored
+        character(len=:), allocatable :: input_text, errmsg
+        integer :: stat, dimension
+        integer(i8) :: n_rows, step
+        real(wp) :: time
+        real(wp), allocatable :: balance(:)
+        if (.not. allocated(cfg%regions)) then
+            call fatal_collective('remesh', "--regions: '" // regions_path // "' has no " // &
+                '&region groups: nothing to refine; nothing written')
+        else if (size(cfg%regions) == 0) then
+            call fatal_collective('remesh', "--regions: '" // regions_path // "' has no " // &
+                '&region groups: nothing to refine; nothing written')
+        end if
+        call check_out_path(env, in_path, out_path)
+        ! IN must be uniform: a multi-resolution state has its regions (its stored input's)
+        call read_snapshot_header(env, in_path, time, step, dimension, n_rows, input_text, &
+            stat, errmsg)
+        if (stat /= 0) call fatal_collective('remesh', errmsg)
+        call config_parse(stored, input_text, in_path // ' (stored input)', stat, errmsg)
+        if (stat == 0 .and. allocated(stored%regions)) then
+            if (size(stored%regions) > 0) call fatal_collective('remesh', "IN '" // in_path // &
+                "' holds a multi-resolution state already (its stored input has &region " // &
+                'groups): --regions refines a uniform one; nothing written')
+        end if
+        call log_info('remesh: ' // in_path // ' -> ' // out_path // ', the &region groups ' // &
+            'of ' // regions_path // ' refined')
+        ! the restart's path: the regions refined (refine_if_uniform), the levels started
+        call simulation_restart(sim, env, cfg, in_path)
+        ! a verlet run continues from the rates of the state it reads (simulation_restart)
+        if (sim%verlet) call evaluate_rates(sim, env)
+        call checkpoint_balance(sim, balance)
+        call write_checkpoint(env, sim%p, sim%domain, out_path, sim%time, sim%step, &
+            sim%cfg%domain%dimension, code_version, sim%input_text, sim%snapshot_index, stat, &
+            errmsg, sim%cfg%domain%dx, balance)
+        if (stat /= 0) call fatal_collective('remesh', errmsg)
+        call log_info('remesh: checkpoint ' // out_path // ' written; continue with ' // &
+            'sphremesh ' // regions_path // ' --restart ' // out_path)
+    end procedure simulation_refine_regions_file
+
+    !> OUT of an offline remesh is a new file in a folder that takes it (collective): an
+    !> existing file (IN itself, or a checkpoint the user still needs) is never replaced, and
+    !> a folder that cannot take OUT.tmp (where the checkpoint goes first) is found out before
+    !> the work. Stops every rank with a message otherwise.
+    subroutine check_out_path(env, in_path, out_path)
+        type(mpi_env_t), intent(in) :: env
+        character(len=*), intent(in) :: in_path, out_path
+        logical :: out_exists, out_writable
+        integer :: unit, ios
+        out_exists = .false.
+        if (env%rank == 0) inquire(file=out_path, exist=out_exists)
+        if (global_max(env, merge(1_i8, 0_i8, out_exists)) > 0) then
+            if (out_path == in_path) then
+                call fatal_collective('remesh', "OUT '" // out_path // "' is IN: the " // &
+                    'remeshed checkpoint is written to a new file; give OUT another name')
+            end if
+            call fatal_collective('remesh', "OUT '" // out_path // "' exists: the " // &
+                'remeshed checkpoint is written to a new file and never replaces one; ' // &
+                'give OUT another name or remove that file')
+        end if
+        out_writable = .true.
+        if (env%rank == 0) then
+            open(newunit=unit, file=out_path // '.tmp', status='replace', action='write', &
+                iostat=ios)
+            out_writable = ios == 0
+            if (out_writable) close(unit, status='delete')
+        end if
+        if (global_max(env, merge(1_i8, 0_i8, .not. out_writable)) > 0) &
+            call fatal_collective('remesh', "cannot create OUT '" // out_path // "' (its " // &
+                'folder is missing or not writable); nothing done')
+    end subroutine check_out_path
 end submodule sph_stepper_remesh

@@ -9,7 +9,7 @@ program sphremesh_main
     use sph_version, only: code_version, build_options
     use sph_simulation, only: simulation_run
     use sph_stepper, only: simulation_t, simulation_setup, simulation_check_report, &
-        simulation_remesh_file
+        simulation_remesh_file, simulation_refine_regions_file
     use sph_signals, only: signals_install
     use sph_memory, only: keep_freed_memory
     use mpi_f08, only: MPI_Finalize
@@ -44,7 +44,14 @@ program sphremesh_main
     write(nranks_text, '(i0)') env%nranks
     call log_info(code_version // ' on ' // trim(nranks_text) // ' MPI rank(s)')
     call log_info('build: ' // build_options)
-    if (len(opts%remesh_mode) > 0) then
+    if (len(opts%regions_input) > 0) then
+        ! --remesh refine IN OUT --regions INPUT.nml: INPUT.nml checked as for a run
+        call load_config(env, opts%regions_input, cfg, stat, errmsg)
+        if (stat /= 0) call fatal_collective('input', errmsg)
+        call simulation_refine_regions_file(env, cfg, opts%regions_input, opts%remesh_in, &
+            opts%remesh_out)
+        call finish(0)
+    else if (len(opts%remesh_mode) > 0) then
         call simulation_remesh_file(env, opts%remesh_mode, opts%remesh_in, opts%remesh_out)
         call finish(0)
     end if
