@@ -366,6 +366,15 @@ module sph_stepper
             character(len=:), allocatable :: text
         end function geometry_mismatch
 
+        !> Whether what the rates depend on (the &domain, &fluid, &numerics, &body,
+        !> &refinement and &region groups of the resolved inputs) differs between a
+        !> checkpoint's stored input and cfg (sph_stepper_checks): then a checkpoint's rates
+        !> (a verlet run's) are another input's.
+        module function rates_inputs_differ(stored, cfg) result(differ)
+            type(config_t), intent(in) :: stored, cfg
+            logical :: differ
+        end function rates_inputs_differ
+
         !> Smallest and largest fluid density over all ranks (collective).
         module function fluid_density_range(sim, env) result(range)
             type(simulation_t), intent(in) :: sim
@@ -510,6 +519,13 @@ contains
         sim%rates_stale = .true.
         if (stat == 0) then
             sim%rates_stale = trim(stored%numerics%integrator) /= 'verlet'
+            ! a checkpoint's rates are its own input's: with other physics (a body force
+            ! changed to continue) the first step would kick with the old ones
+            if (.not. sim%rates_stale .and. rates_inputs_differ(stored, cfg)) then
+                sim%rates_stale = .true.
+                call log_info('restart: the input differs from the checkpoint''s in what the ' &
+                    // 'rates depend on; its rates are evaluated anew')
+            end if
             mismatch = geometry_mismatch(stored, cfg)
             if (len(mismatch) > 0) call fatal_collective('restart', mismatch)
         end if

@@ -158,4 +158,32 @@ contains
             end associate
         end do
     end procedure geometry_mismatch
+
+    module procedure rates_inputs_differ
+        character(len=*), parameter :: groups(6) = [character(len=10) :: 'domain', 'fluid', &
+            'numerics', 'body', 'refinement', 'region']
+        differ = blocks_of(stored%resolved) /= blocks_of(cfg%resolved)
+    contains
+        !> The blocks of those groups in a resolved text ('&name' line to '/' line), in order.
+        function blocks_of(text) result(kept)
+            character(len=*), intent(in) :: text
+            character(len=:), allocatable :: kept, line
+            integer :: start, stop_at
+            logical :: inside
+            kept = ''
+            inside = .false.
+            start = 1
+            do while (start <= len(text))
+                stop_at = index(text(start:), new_line('a'))
+                if (stop_at == 0) stop_at = len(text) - start + 2
+                line = text(start:start + stop_at - 2)
+                start = start + stop_at
+                if (.not. inside .and. len_trim(line) > 1) then
+                    if (line(1:1) == '&') inside = any(groups == trim(line(2:)))
+                end if
+                if (inside) kept = kept // line // new_line('a')
+                if (trim(line) == '/') inside = .false.
+            end do
+        end function blocks_of
+    end procedure rates_inputs_differ
 end submodule sph_stepper_checks

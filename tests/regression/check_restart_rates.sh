@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# Regression: a velocity-Verlet checkpoint carries the rates its next step starts from. A
+# restart that only extends the run (t_end, output times) uses them and repeats the straight
+# run bit for bit; one whose input changes what the rates depend on (here the body force)
+# says so and evaluates them anew (before, its first kick used the old force's rates).
+# usage: check_restart_rates.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM POISEUILLE.nml WORKDIR
+#        PYTHON COMPARER
+set -u
+mpiexec=$1 np_flag=$2 np=$3 extra=$4 program=$5 input=$6 work=$7 python=$8 comparer=$9
+run() { local n=$1; shift; "$mpiexec" "$np_flag" "$n" $extra "$program" "$@"; }
+fail() { echo "$1"; [ -n "${2:-}" ] && cat "$2"; exit 1; }
+rm -rf "$work" && mkdir -p "$work" && cd "$work" || exit 1
+
+make_input() {   # name, t_end, output_times, body force
+    sed -e "s/^ *t_end = .*/    t_end = $2/" -e "s#^ *output_dir = .*#    output_dir = '$1'#" \
+        -e "s/^ *output_times = .*/    output_times = $3/" -e 's/^ *dx = .*/    dx = 5.0e-5/' \
+        -e "s/^ *body_force = .*/    body_force = $4, 0.0/" \
+        -e "s/^&numerics/\&numerics\n    integrator = 'verlet'/" "$input" > "$1.nml"
+}
+make_input first 0.01 0.01 2.0e-4
+make_input straight 0.02 "0.01, 0.02" 2.0e-4
+make_input extended 0.02 "0.01, 0.02" 2.0e-4
+make_input stronger 0.02 "0.01, 0.02" 4.0e-4
+run "$np" first.nml > first.log 2>&1 || fail "the first run failed:" first.log
+run "$np" straight.nml > straight.log 2>&1 || fail "the straight run failed:" straight.log
+checkpoint=$(ls first/*_checkpoint_*.h5 | tail -1)
+run "$np" extended.nml --restart "$checkpoint" > extended.log 2>&1 || \
+    fail "the extended run failed:" extended.log
+if grep -q "evaluated anew" extended.log; then
+    fail "an extended run did not take the checkpoint's rates:" extended.log
+fi
+last() { ls "$1"/*_0*.h5 | grep -v checkpoint | tail -1; }
+"$python" "$comparer" "$(last straight)" "$(last extended)" > compare.log 2>&1 || \
+    fail "the extended run differs from the straight one:" compare.log
+run "$np" stronger.nml --restart "$checkpoint" > stronger.log 2>&1 || \
+    fail "the run with a stronger force failed:" stronger.log
+grep -q "restart: the input differs from the checkpoint's in what the rates depend on" \
+    stronger.log || fail "a changed body force kept the checkpoint's rates:" stronger.log
+echo "a Verlet checkpoint's rates: kept when only the run is extended, evaluated anew otherwise"
