@@ -383,239 +383,44 @@ module sph_stepper
         end function fluid_density_range
     end interface
 
+    ! Set-up and restart (submodule sph_stepper_setup).
+    interface
+        !> Build everything from a validated configuration (collective).
+        module subroutine simulation_setup(sim, env, cfg)
+            type(simulation_t), intent(out) :: sim
+            type(mpi_env_t), intent(in) :: env
+            type(config_t), intent(in) :: cfg
+        end subroutine simulation_setup
+
+        !> Continue from a checkpoint file, or from the newest complete one in a directory.
+        !> On the rank count that wrote it the run continues bit for bit.
+        module subroutine simulation_restart(sim, env, cfg, from)
+            type(simulation_t), intent(out) :: sim
+            type(mpi_env_t), intent(in) :: env
+            type(config_t), intent(in) :: cfg
+            character(len=*), intent(in) :: from
+        end subroutine simulation_restart
+
+        ! (in sph_stepper_shared, as the submodules call them: gfortran emits no symbol for a
+        ! procedure of the module itself that it has inlined at every call there)
+
+        !> How far ghosts reach beyond a rank's region (see migrate_and_rebuild).
+        !> With several levels, ghosts must also cover what the transition zones' virtual
+        !> particles are made from: the interpolation reaches 2 sqrt(dim) coarse spacings.
+        pure module function halo_reach(sim) result(reach)
+            type(simulation_t), intent(in) :: sim
+            real(wp) :: reach
+        end function halo_reach
+
+        !> &refinement conserve: the masses of the real fluid and the walls scaled by one
+        !> factor that brings the real fluid back to the reference total (sph_level_balance).
+        module subroutine hold_real_mass(sim, env)
+            type(simulation_t), intent(inout) :: sim
+            type(mpi_env_t), intent(in) :: env
+        end subroutine hold_real_mass
+    end interface
+
 contains
-
-    !> Build everything from a validated configuration (collective).
-    subroutine simulation_setup(sim, env, cfg)
-        type(simulation_t), intent(out) :: sim
-        type(mpi_env_t), intent(in) :: env
-        type(config_t), intent(in) :: cfg
-        integer :: stat
-        integer, allocatable :: order(:)
-        character(len=:), allocatable :: errmsg
-        character(len=160) :: line
-        call setup_common(sim, env, cfg)
-        if (len_trim(cfg%domain%initial_particles) == 0) call check_lattice_size(sim, env)
-        if (len_trim(cfg%domain%initial_particles) > 0) then
-            ! rows shared evenly over the ranks, then partitioned as on a restart
-            call read_initial_particles(env, cfg, sim%phys, sim%solids, &
-                trim(cfg%domain%initial_particles), sim%p, stat, errmsg)
-            if (stat /= 0) call fatal_collective('set-up', errmsg)
-            call log_info('particles: read from ' // trim(cfg%domain%initial_particles))
-        else if (multires(sim)) then
-            call create_level_particles(env, cfg, sim%level_phys, sim%solids, sim%domain, &
-                sim%zones, sim%p, sim%reference_mass)
-            if (cfg%refinement%conserve) then
-                ! the fluid's mass as the uniform lattice holds it (sph_level_balance)
-                call hold_real_mass(sim, env)
-                write(line, '(a,es16.9,a,f10.7,a)') 'set-up: real fluid mass ', &
-                    sim%reference_mass, ' kg, the fluid''s (the levels'' lattices held ', &
-                    1.0_wp - sim%mass_restored / sim%reference_mass, ' of it)'
-                call log_info(trim(line))
-                sim%mass_restored = 0.0_wp
-            else
-                sim%reference_mass = 0.0_wp
-            end if
-        else
-            call create_lattice_particles(cfg, sim%phys, sim%solids, sim%domain, sim%p)
-        end if
-        ! balance by particle count (walls included: they cost work too)
-        call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
-        call migrate(sim, env)
-        ! each rank's particles in id order before the cell sort: the start then depends only
-        ! on the set of particles, not on how they came (lattice, file, any reading layout)
-        allocate(order(sim%p%n_owned))
-        call id_order(sim%p%id, sim%p%n_owned, order)
-        call particles_gather(sim%p, order)
-        call halo_setup(sim%halo, sim%domain, halo_reach(sim))
-        call simulation_prepare_neighbours(sim, env)
-        call start_levels(sim, env)
-        call log_setup(sim, env)
-    end subroutine simulation_setup
-
-    !> Multi-resolution bookkeeping at the start of a run or restart: the next unused id and
-    !> each level's real mass, the reference of the mass drift in the log (collective).
-    subroutine start_levels(sim, env)
-        type(simulation_t), intent(inout) :: sim
-        type(mpi_env_t), intent(in) :: env
-        integer(i8), allocatable :: n_real(:), n_virtual(:)
-        real(wp), allocatable :: momentum(:, :)
-        if (.not. multires(sim)) return
-        sim%next_id = global_max_id(env, sim%p%id, sim%p%n_owned)
-        allocate(n_real(0:sim%zones%n_levels - 1), n_virtual(0:sim%zones%n_levels - 1))
-        allocate(sim%first_level_mass(0:sim%zones%n_levels - 1))
-        allocate(momentum(3, 0:sim%zones%n_levels - 1))
-        call level_totals(env, sim%p, sim%zones%n_levels, n_real, n_virtual, &
-            sim%first_level_mass, momentum)
-        ! a restart has them from its checkpoint (simulation_restart)
-        if (sim%reference_mass <= 0.0_wp) sim%reference_mass = sum(sim%first_level_mass)
-        if (.not. allocated(sim%level_push)) then
-            allocate(sim%level_push(3, 0:sim%zones%n_levels - 1), source=0.0_wp)
-            allocate(sim%level_push_mass(0:sim%zones%n_levels - 1), source=0.0_wp)
-        end if
-    end subroutine start_levels
-
-    !> Continue from a checkpoint file, or from the newest complete one in a directory.
-    !> On the rank count that wrote it the run continues bit for bit.
-    subroutine simulation_restart(sim, env, cfg, from)
-        type(simulation_t), intent(out) :: sim
-        type(mpi_env_t), intent(in) :: env
-        type(config_t), intent(in) :: cfg
-        character(len=*), intent(in) :: from
-        character(len=:), allocatable :: path, skipped, errmsg, stored_input, index_text
-        character(len=:), allocatable :: mismatch
-        type(config_t) :: stored
-        integer :: stat
-        logical :: same_layout, is_directory
-        character(len=256) :: line
-        real(wp) :: stored_dx
-        real(wp), allocatable :: balance(:)
-        integer :: n
-
-        call setup_common(sim, env, cfg)
-        inquire(file=trim(from) // '/.', exist=is_directory)
-        if (is_directory) then
-            call find_latest_checkpoint(env, from, trim(cfg%run%case_name), path, skipped, stat, &
-                errmsg)
-            if (stat /= 0) call fatal_collective('restart', errmsg)
-            if (len(skipped) > 0) call log_info('restart: skipped' // skipped)
-        else
-            path = from
-        end if
-        call read_checkpoint(env, path, sim%p, sim%domain, sim%time, sim%step, stored_input, &
-            index_text, same_layout, stat, errmsg, stored_dx, balance)
-        if (stat /= 0) call fatal_collective('restart', errmsg)
-        ! a multi-resolution state continued by an input without regions would run its fine
-        ! and virtual particles as if they were of the one level (a two-level channel did,
-        ! without a word)
-        if (.not. multires(sim)) then
-            if (global_max(env, int(count(sim%p%level(1:sim%p%n_owned) > 0 .or. &
-                sim%p%kind(1:sim%p%n_owned) == KIND_VIRTUAL), i8)) > 0) &
-                call fatal_collective('restart', 'the checkpoint holds a multi-resolution ' // &
-                'state (particles of finer levels and virtual particles): it continues with ' // &
-                'an input that has its &region groups (the input stored in it has them)')
-        end if
-        ! values no run writes (a file edited or damaged outside sphremesh) stop here, not
-        ! later as a floating-point trap, an index out of range or a hang
-        if (.not. ieee_is_finite(sim%time)) call fatal_collective('restart', "'" // path // &
-            "': its time is not finite; refused")
-        call check_read_particles(env, sim%p, sim%zones%n_levels, size(sim%solids%list), &
-            path, stat, errmsg)
-        if (stat /= 0) call fatal_collective('restart', errmsg)
-        ! the levels' balance as the checkpointed run had it (the reference mass, and for
-        ! sub-cycled levels the pushes of the levels not evaluated at the next step)
-        n = sim%zones%n_levels
-        if (multires(sim) .and. size(balance) == 1 + 4 * n) then
-            sim%reference_mass = balance(1)
-            allocate(sim%level_push(3, 0:n - 1), sim%level_push_mass(0:n - 1))
-            sim%level_push(:, :) = reshape(balance(2:1 + 3 * n), [3, n])
-            sim%level_push_mass(:) = balance(2 + 3 * n:)
-        end if
-        ! the input the checkpoint was written with: a Verlet run's rates are those its next
-        ! step starts from (a verlet continuation takes them, bit for bit; any other
-        ! checkpoint's are evaluated again), and its particles (walls and bodies included)
-        ! were laid for its geometry
-        call config_parse(stored, stored_input, 'checkpoint input', stat, errmsg)
-        sim%rates_stale = .true.
-        if (stat == 0) then
-            sim%rates_stale = trim(stored%numerics%integrator) /= 'verlet'
-            ! a checkpoint's rates are its own input's: with other physics (a body force
-            ! changed to continue) the first step would kick with the old ones
-            if (.not. sim%rates_stale .and. rates_inputs_differ(stored, cfg)) then
-                sim%rates_stale = .true.
-                call log_info('restart: the input differs from the checkpoint''s in what the ' &
-                    // 'rates depend on; its rates are evaluated anew')
-            end if
-            mismatch = geometry_mismatch(stored, cfg)
-            if (len(mismatch) > 0) call fatal_collective('restart', mismatch)
-        end if
-        ! a remeshed (refined or coarsened) checkpoint holds particles of another spacing:
-        ! the input must say so (kernel, masses of new walls, time step follow from dx)
-        if (stored_dx > 0.0_wp .and. abs(stored_dx - cfg%domain%dx) > 1.0e-9_wp * stored_dx) then
-            write(line, '(a,es15.8,a,es15.8,a)') "the checkpoint's particles have spacing " // &
-                'dx = ', stored_dx, ' m but &domain dx = ', cfg%domain%dx, &
-                ' m; set &domain dx to the checkpoint''s spacing to continue from it'
-            call fatal_collective('restart', trim(line))
-        end if
-        if (cfg%remesh%every_time > 0.0_wp) sim%next_remesh_time = cfg%remesh%every_time * &
-            (floor(sim%time / cfg%remesh%every_time * (1.0_wp + 1.0e-12_wp)) + 1)
-        sim%snapshot_index = index_text
-        if (.not. same_layout) then
-            call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
-            call migrate(sim, env)
-        end if
-        call refine_if_uniform(sim, env)
-        call halo_setup(sim%halo, sim%domain, halo_reach(sim))
-        call simulation_prepare_neighbours(sim, env)
-        call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
-        call start_levels(sim, env)
-        ! (the path first, apart: a line of fixed length cannot hold every path)
-        write(line, '(a,es12.5,a,i0,a)') ' at t = ', sim%time, ' s, step ', sim%step, &
-            merge(' (same decomposition)      ', ' (decomposition rebuilt)   ', same_layout)
-        call log_info('continuing from ' // path // trim(line))
-        if (stored_input /= sim%input_text) call log_info('restart: the input differs from ' // &
-            'the one stored in the checkpoint; the new input is used')
-        call log_setup(sim, env)
-    end subroutine simulation_restart
-
-    !> A checkpoint of a uniform run continued with &region groups: the regions are refined
-    !> (sph_transition_driver refine_uniform_state) and the decomposition rebalanced.
-    subroutine refine_if_uniform(sim, env)
-        type(simulation_t), intent(inout) :: sim
-        type(mpi_env_t), intent(in) :: env
-        integer(i8) :: before
-        character(len=160) :: line
-        if (.not. multires(sim)) return
-        if (global_max(env, int(maxval(sim%p%level(1:sim%p%n_owned), &
-            mask=sim%p%n_owned > 0), i8)) > 0) return
-        before = global_sum(env, int(sim%p%n_owned, i8))
-        sim%next_id = global_max_id(env, sim%p%id, sim%p%n_owned)
-        call refine_uniform_state(env, sim%cfg, sim%level_phys, sim%solids, sim%domain, &
-            sim%zones, sim%p, sim%next_id)
-        ! the checkpoint's rates (a verlet run's) are those of the uniform state: the new
-        ! particles have none
-        sim%rates_stale = .true.
-        call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
-        call migrate(sim, env)
-        write(line, '(a,i0,a,i0,a)') 'restart: the checkpoint is uniform; its regions were ' // &
-            'refined (', before, ' -> ', global_sum(env, int(sim%p%n_owned, i8)), ' particles)'
-        call log_info(trim(line))
-    end subroutine refine_if_uniform
-
-    subroutine log_setup(sim, env)
-        type(simulation_t), intent(in) :: sim
-        type(mpi_env_t), intent(in) :: env
-        character(len=256) :: line
-        write(line, '(a,es12.5,a,es12.5,a,es12.5,a)') 'physics: h = ', sim%phys%kernel%h, &
-            ' m (kernel ' // kernel_name(sim%phys%kernel%id) // ', support ', &
-            sim%phys%kernel%support, ' m), c = ', sim%phys%c, ' m/s'
-        call log_info(trim(line))
-        write(line, '(a,es12.5,a,es12.5,a,i0)') '         velocity scale ', &
-            sim%phys%velocity_scale, ' m/s, length scale ', sim%phys%length_scale, &
-            ' m, wall layers ', wall_layers(sim%phys)
-        call log_info(trim(line))
-        if (sim%phys%transport_velocity) then
-            write(line, '(a,es12.5,a)') '         transport velocity: background pressure ', &
-                sim%phys%transport_pressure, ' Pa'
-            call log_info(trim(line))
-        end if
-        write(line, '(a,i0,a,i0,a,f6.3)') 'particles: ', &
-            global_sum(env, int(sim%p%n_owned, i8)), ' real (fluid ', &
-            global_sum(env, int(count(sim%p%kind(1:sim%p%n_owned) == KIND_FLUID), i8)), &
-            '), load imbalance ', domain_imbalance(env, sim%p%n_owned)
-        call log_info(trim(line))
-    end subroutine log_setup
-
-    !> How far ghosts reach beyond a rank's region (see migrate_and_rebuild).
-    !> With several levels, ghosts must also cover what the transition zones' virtual particles
-    !> are made from: the interpolation reaches 2 sqrt(dim) coarse spacings.
-    pure real(wp) function halo_reach(sim)
-        type(simulation_t), intent(in) :: sim
-        halo_reach = sim%phys%kernel%support + sim%skin + sim%list_skin
-        if (sim%zones%n_levels > 1) halo_reach = max(halo_reach, 2.0_wp * &
-            sqrt(real(sim%cfg%domain%dimension, wp)) * sim%cfg%domain%dx + sim%skin + &
-            sim%list_skin)
-    end function halo_reach
 
     !> Forget the particles of a simulation (its arrays stay allocated for reuse).
     subroutine simulation_free(sim)
@@ -1086,18 +891,6 @@ contains
         sim%transition_seconds = sim%transition_seconds + (MPI_Wtime() - start)
         call timers_leave(sim%timers, previous)
     end subroutine update_transition_zones
-
-    !> &refinement conserve: the masses of the real fluid and the walls scaled by one factor
-    !> that brings the real fluid back to the reference total (sph_level_balance).
-    subroutine hold_real_mass(sim, env)
-        type(simulation_t), intent(inout) :: sim
-        type(mpi_env_t), intent(in) :: env
-        real(wp) :: mass
-        mass = global_sum(env, real_fluid_mass(sim%p))
-        if (mass <= 0.0_wp) return
-        call scale_masses(sim%p, sim%reference_mass / mass)
-        sim%mass_restored = sim%mass_restored + (sim%reference_mass - mass)
-    end subroutine hold_real_mass
 
     !> Stop collectively when the run has become unhealthy (sph_health): non-finite values, a
     !> fluid particle inside a solid, a density outside the band, a collapsed time step. The

@@ -339,4 +339,19 @@ contains
         lim = timestep_limits(h, sim%phys%c, maxima(1), stiffest_viscosity(sim%phys), maxima(2), &
             sim%cfg%numerics%cfl, sim%cfg%numerics%viscous_safety, sim%cfg%numerics%force_safety)
     end procedure stable_timestep
+
+    module procedure halo_reach
+        reach = sim%phys%kernel%support + sim%skin + sim%list_skin
+        if (sim%zones%n_levels > 1) reach = max(reach, 2.0_wp * &
+            sqrt(real(sim%cfg%domain%dimension, wp)) * sim%cfg%domain%dx + sim%skin + &
+            sim%list_skin)
+    end procedure halo_reach
+
+    module procedure hold_real_mass
+        real(wp) :: mass
+        mass = global_sum(env, real_fluid_mass(sim%p))
+        if (mass <= 0.0_wp) return
+        call scale_masses(sim%p, sim%reference_mass / mass)
+        sim%mass_restored = sim%mass_restored + (sim%reference_mass - mass)
+    end procedure hold_real_mass
 end submodule sph_stepper_shared
