@@ -190,9 +190,15 @@ contains
         if (stat /= 0) return
         ! then what only checkpoints hold, over the defaults the snapshot reader set
         call h5_open_read(env, path, file, stat)
-        if (stat == 0) call check_datasets(file, n_rows, stat, message, FIELD_CHECKPOINT, p)
         if (stat /= 0) then
-            errmsg = "'" // path // "': the checkpoint datasets are missing: refused"
+            errmsg = "'" // path // "': cannot be opened again for its checkpoint " // &
+                'datasets: refused'
+            return
+        end if
+        call check_datasets(file, n_rows, stat, message, FIELD_CHECKPOINT, p)
+        if (stat /= 0) then
+            ! (check_datasets names the dataset and what is wrong with it)
+            errmsg = message
             call h5_close(file)
             return
         end if

@@ -481,15 +481,19 @@ contains
 
     !> Rows of a dataset (its last Fortran dimension, h5py's first); -1 when it does not
     !> exist. `width`: 0 for a one-dimensional dataset, else the columns (h5py's 2nd size).
-    integer(i8) function h5_dataset_rows(file, name, width) result(rows)
+    integer(i8) function h5_dataset_rows(file, name, width, floats) result(rows)
         type(h5_file_t), intent(in) :: file
         character(len=*), intent(in) :: name
         integer, intent(out), optional :: width
-        integer(hid_t) :: dset, space
+        !> whether it stores floating-point values (an integer field's dataset must not: HDF5
+        !> would round them, and a NaN traps where floating-point exceptions do)
+        logical, intent(out), optional :: floats
+        integer(hid_t) :: dset, space, file_type
         integer(hsize_t) :: dims(2), maxdims(2)
-        integer :: ierr, rank
+        integer :: ierr, rank, class
         rows = -1
         if (present(width)) width = -1
+        if (present(floats)) floats = .false.
         if (.not. h5_exists(file, name)) return
         call h5dopen_f(file%id, name, dset, ierr)
         if (ierr < 0) return   ! a group of that name
@@ -505,6 +509,15 @@ contains
         end if
         call h5sclose_f(space, ierr)
         call check_h5(ierr, 'h5_dataset_rows: h5sclose_f ' // name)
+        if (present(floats)) then
+            call h5dget_type_f(dset, file_type, ierr)
+            call check_h5(ierr, 'h5_dataset_rows: h5dget_type_f ' // name)
+            call h5tget_class_f(file_type, class, ierr)
+            call check_h5(ierr, 'h5_dataset_rows: h5tget_class_f ' // name)
+            floats = class == H5T_FLOAT_F
+            call h5tclose_f(file_type, ierr)
+            call check_h5(ierr, 'h5_dataset_rows: h5tclose_f ' // name)
+        end if
         call h5dclose_f(dset, ierr)
         call check_h5(ierr, 'h5_dataset_rows: h5dclose_f ' // name)
     end function h5_dataset_rows
@@ -768,12 +781,30 @@ contains
         character(len=*), intent(in), optional :: at
         integer, intent(out) :: status
         character(len=:), allocatable, intent(out) :: message
-        integer(hid_t) :: attr
-        integer :: ierr
+        integer(hid_t) :: attr, file_type
+        integer :: ierr, file_class, mem_class
         type(c_ptr) :: target_buffer   ! h5aread_f wants a variable
         target_buffer = buffer
         call open_attribute(file, name, at, attr, status, message)
         if (status == 0) then
+            ! a floating-point value is not converted to an integer: HDF5 would round or
+            ! clip it, and a NaN traps where floating-point exceptions do (debug builds)
+            call h5aget_type_f(attr, file_type, ierr)
+            call check_h5(ierr, 'h5_read_attribute ' // name // ': h5aget_type_f')
+            call h5tget_class_f(file_type, file_class, ierr)
+            call check_h5(ierr, 'h5_read_attribute ' // name // ': h5tget_class_f')
+            call h5tclose_f(file_type, ierr)
+            call check_h5(ierr, 'h5_read_attribute ' // name // ': h5tclose_f')
+            call h5tget_class_f(mem_type, mem_class, ierr)
+            call check_h5(ierr, 'h5_read_attribute ' // name // ': h5tget_class_f')
+            if (mem_class == H5T_INTEGER_F .and. file_class == H5T_FLOAT_F) then
+                call h5aclose_f(attr, ierr)
+                call check_h5(ierr, 'h5_read_attribute ' // name // ': h5aclose_f')
+                status = 1
+                message = "the attribute '" // name // "' of '" // file%path // &
+                    "' holds a floating-point value where an integer belongs"
+                return
+            end if
             call h5aread_f(attr, mem_type, target_buffer, status)
             call h5aclose_f(attr, ierr)
             call check_h5(ierr, 'h5_read_attribute ' // name // ': h5aclose_f')

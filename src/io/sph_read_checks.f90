@@ -17,14 +17,19 @@ module sph_read_checks
     private
     public :: check_read_particles, append_problems
 
-    integer, parameter :: N_PROBLEMS = 6
-    character(len=*), parameter :: PROBLEM_TEXT(N_PROBLEMS) = [character(len=72) :: &
+    integer, parameter :: N_PROBLEMS = 7
+    !> The largest magnitude taken: squares and products of a few such values stay finite
+    !> (a velocity of 1e300 m/s overflowed in the first time step limit)
+    real(wp), parameter :: LARGEST_VALUE = 1.0e150_wp
+    character(len=*), parameter :: PROBLEM_TEXT(N_PROBLEMS) = [character(len=96) :: &
         'particles of a kind other than 0 (fluid), 1 (wall) or 2 (virtual)', &
         'particles not finite (position, velocity, density, mass or energy)', &
         'fluid or wall particles with mass <= 0 or density <= 0', &
         'fluid or wall particles with id <= 0', &
         'particles of a level outside the input''s levels', &
-        'wall particles of a solid the input does not have']
+        'wall particles of a solid the input does not have', &
+        'particles with a value above 1e150 in magnitude (position, velocity, density, ' // &
+        'mass or energy)']
 
 contains
 
@@ -52,7 +57,13 @@ contains
             if (.not. (real_kind .or. p%kind(i) == KIND_VIRTUAL)) call problem(1)
             if (.not. (all(ieee_is_finite(p%x(:, i))) .and. all(ieee_is_finite(p%v(:, i))) &
                        .and. ieee_is_finite(p%rho(i)) .and. ieee_is_finite(p%m(i)) .and. &
-                       ieee_is_finite(p%e(i)))) call problem(2)
+                       ieee_is_finite(p%e(i)))) then
+                call problem(2)
+            else if (any(abs(p%x(:, i)) > LARGEST_VALUE) .or. any(abs(p%v(:, i)) > &
+                    LARGEST_VALUE) .or. max(abs(p%rho(i)), abs(p%m(i)), abs(p%e(i))) > &
+                    LARGEST_VALUE) then
+                call problem(7)
+            end if
             if (real_kind .and. .not. (p%m(i) > 0.0_wp .and. p%rho(i) > 0.0_wp)) call problem(3)
             ! (virtual particles carry hashed ids, of either sign, that no real one has)
             if (real_kind .and. p%id(i) <= 0) call problem(4)

@@ -18,7 +18,7 @@ module sph_snapshot
     use sph_particles, only: particles_t, particles_reserve, particles_clear, particles_visit, &
         field_list, &
         field_info_t, field_op_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL, FIELD_SNAPSHOT, &
-        FIELD_OPTIONAL
+        FIELD_OPTIONAL, FIELD_REAL
     use sph_hdf5, only: h5_file_t, h5_create, h5_open_read, h5_close, h5_group_create, &
         h5_row_layout, h5_write_rows, h5_read_rows, h5_dataset_rows, h5_write_attribute, &
         h5_read_attribute
@@ -383,21 +383,34 @@ contains
             if (iand(fields(k)%flags, FIELD_OPTIONAL) /= 0 .and. &
                 h5_dataset_rows(file, 'particles/' // trim(fields(k)%name)) < 0) cycle
             call check_one(trim(fields(k)%name), merge(0, fields(k)%width, &
-                fields(k)%width == 1))
+                fields(k)%width == 1), fields(k)%storage /= FIELD_REAL)
             if (stat /= 0) return
         end do
-        if (iand(selection, FIELD_SNAPSHOT) /= 0) call check_one('rank', 0)
+        if (iand(selection, FIELD_SNAPSHOT) /= 0) call check_one('rank', 0, .true.)
     contains
-        subroutine check_one(name, expected_width)
+        subroutine check_one(name, expected_width, integral)
             character(len=*), intent(in) :: name
             integer, intent(in) :: expected_width
+            logical, intent(in) :: integral   !< an integer field
             integer :: width
             integer(i8) :: these
-            these = h5_dataset_rows(file, 'particles/' // name, width)
+            logical :: floats
+            these = h5_dataset_rows(file, 'particles/' // name, width, floats)
             if (these < 0 .or. these /= rows .or. width /= expected_width) then
                 stat = 1
                 message = "'" // file%path // "': the dataset /particles/" // name // &
                     " is missing or has the wrong shape: refused"
+            else if (integral .eqv. floats) then
+                ! HDF5 would convert them: floats rounded to integers (a NaN traps where
+                ! floating-point exceptions do), positions written as integers read as such
+                stat = 1
+                if (integral) then
+                    message = "'" // file%path // "': the dataset /particles/" // name // &
+                        ' holds floating-point values where integers belong: refused'
+                else
+                    message = "'" // file%path // "': the dataset /particles/" // name // &
+                        ' holds integers where floating-point values belong: refused'
+                end if
             end if
         end subroutine check_one
     end subroutine check_datasets
