@@ -8,7 +8,8 @@ module sph_checkpoint
     use sph_kinds, only: wp, i4, i8
     use sph_mpi_env, only: mpi_env_t, broadcast_text, agreed_status
     use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL, FIELD_CHECKPOINT
-    use sph_domain, only: domain_t, domain_set_tree
+    use sph_domain, only: domain_t, domain_set_tree, domain_tree_valid
+    use sph_logger, only: log_warn
     use sph_hdf5, only: h5_file_t, h5_open_read, h5_close, h5_group_create, h5_write_rows, &
         h5_read_rows, h5_dataset_rows, h5_write_attribute, h5_read_attribute, h5_row_layout, &
         h5_attribute_exists
@@ -131,6 +132,7 @@ contains
         integer(i4), allocatable :: axis(:), left(:), right(:), ranks(:)
         real(wp), allocatable :: cuts(:)
         character(len=:), allocatable :: message
+        logical :: stored_layout   !< a layout for this rank count is stored (whole or not)
 
         same_layout = .false.
         snapshot_index = ''
@@ -166,18 +168,36 @@ contains
         call h5_read_attribute(file, 'nranks', nranks_file, stat)
         same_layout = nranks_file == env%nranks .and. &
             h5_dataset_rows(file, 'checkpoint/rank_rows') == env%nranks
+        stored_layout = same_layout
         if (same_layout) then
             allocate(rank_rows(env%nranks))
             call h5_read_rows(file, 'checkpoint/rank_rows', rank_rows, env%nranks, 0_i8)
             offset = sum(rank_rows(1:env%rank))
             n = int(rank_rows(env%rank + 1))
+            ! the stored decomposition, when it is whole: a damaged one (edited outside
+            ! sphremesh) is rebuilt instead, as for another rank count (it indexed out of
+            ! bounds, or a NaN cut trapped)
             n_tree = int(h5_dataset_rows(file, 'checkpoint/orb_axis'))
+            same_layout = n_tree >= 1 .and. all(rank_rows >= 0) .and. &
+                sum(rank_rows) == n_rows .and. &
+                h5_dataset_rows(file, 'checkpoint/orb_left') == n_tree .and. &
+                h5_dataset_rows(file, 'checkpoint/orb_right') == n_tree .and. &
+                h5_dataset_rows(file, 'checkpoint/orb_rank') == n_tree .and. &
+                h5_dataset_rows(file, 'checkpoint/orb_cut') == n_tree
+        end if
+        if (same_layout) then
             allocate(axis(n_tree), left(n_tree), right(n_tree), ranks(n_tree), cuts(n_tree))
             call h5_read_rows(file, 'checkpoint/orb_axis', axis, n_tree, 0_i8)
             call h5_read_rows(file, 'checkpoint/orb_left', left, n_tree, 0_i8)
             call h5_read_rows(file, 'checkpoint/orb_right', right, n_tree, 0_i8)
             call h5_read_rows(file, 'checkpoint/orb_rank', ranks, n_tree, 0_i8)
             call h5_read_rows(file, 'checkpoint/orb_cut', cuts, n_tree, 0_i8)
+            same_layout = domain_tree_valid(int(axis), int(left), int(right), int(ranks), &
+                cuts, dimension, env%nranks)
+        end if
+        if (stored_layout .and. .not. same_layout) call log_warn("restart: the " // &
+            "decomposition stored in '" // path // "' is damaged; it is made anew")
+        if (same_layout) then
             call domain_set_tree(domain, int(axis), int(left), int(right), int(ranks), cuts)
         else
             share = n_rows / env%nranks

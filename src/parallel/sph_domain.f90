@@ -7,6 +7,7 @@
 module sph_domain
     use mpi_f08
     use sph_kinds, only: wp, i8
+    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
     use sph_errors, only: check_mpi, fatal_collective
     use sph_mpi_env, only: mpi_env_t, mpi_wp, global_sum, global_max
     use sph_particles, only: particles_t, particles_pack, particles_unpack, particles_reserve, &
@@ -14,7 +15,7 @@ module sph_domain
     implicit none
     private
     public :: domain_t, domain_create, domain_partition, domain_owner, domain_wrap
-    public :: migrate_particles, domain_imbalance, far, domain_set_tree
+    public :: migrate_particles, domain_imbalance, far, domain_set_tree, domain_tree_valid
 
     real(wp), parameter :: far = 1.0e30_wp   !< "infinite" extent of an open (wall) face
     integer, parameter :: bisection_steps = 64
@@ -330,6 +331,43 @@ contains
             end if
         end do
     end subroutine domain_set_tree
+
+    !> Whether node arrays (as domain_set_tree takes them, read from a checkpoint) form a
+    !> decomposition tree of nranks leaves in dim dimensions: every internal node has an axis
+    !> of the box, a finite cut and two children after it, each node but the first is the
+    !> child of exactly one, and the leaves hold the ranks 0..nranks-1 once each.
+    pure logical function domain_tree_valid(node_axis, node_left, node_right, node_rank, &
+            node_cut, dim, nranks) result(valid)
+        integer, intent(in) :: node_axis(:), node_left(:), node_right(:), node_rank(:)
+        real(wp), intent(in) :: node_cut(:)
+        integer, intent(in) :: dim, nranks
+        integer :: n, node
+        integer, allocatable :: parents(:), leaves(:)
+        n = size(node_axis)
+        valid = n >= 1 .and. size(node_left) == n .and. size(node_right) == n .and. &
+            size(node_rank) == n .and. size(node_cut) == n
+        if (.not. valid) return
+        allocate(parents(n), leaves(0:max(nranks - 1, 0)))
+        parents = 0
+        leaves = 0
+        do node = 1, n
+            if (node_left(node) == 0) then
+                valid = node_right(node) == 0 .and. node_rank(node) >= 0 .and. &
+                    node_rank(node) < nranks
+                if (.not. valid) return
+                leaves(node_rank(node)) = leaves(node_rank(node)) + 1
+            else
+                valid = node_left(node) > node .and. node_left(node) <= n .and. &
+                    node_right(node) > node .and. node_right(node) <= n .and. &
+                    node_axis(node) >= 1 .and. node_axis(node) <= dim .and. &
+                    ieee_is_finite(node_cut(node))
+                if (.not. valid) return
+                parents(node_left(node)) = parents(node_left(node)) + 1
+                parents(node_right(node)) = parents(node_right(node)) + 1
+            end if
+        end do
+        valid = parents(1) == 0 .and. all(parents(2:) == 1) .and. all(leaves == 1)
+    end function domain_tree_valid
 
     !> The rank owning a (wrapped) position.
     pure integer function domain_owner(domain, xi)

@@ -5,7 +5,9 @@
 # of 1e300 m/s; a NaN completion marker) is refused by
 # --restart and by --remesh with one message naming the file and the problem, on every rank
 # alike (before, such files stopped the run later with a floating-point trap, or hung it; a
-# NaN where an integer belongs trapped inside HDF5's conversion in a debug build).
+# NaN where an integer belongs trapped inside HDF5's conversion in a debug build). A damaged
+# decomposition tree (a child index out of range, a NaN cut) is made anew, with a warning:
+# the particles are whole (before: an index out of bounds, a floating-point trap).
 # usage: check_restart_damaged.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM INPUT.nml WORKDIR PYTHON
 set -u
 mpiexec=$1 np_flag=$2 np=$3 extra=$4 program=$5 input=$6 work=$7 python=$8
@@ -31,6 +33,8 @@ edits = {
     "nan_marker": lambda f: f.attrs.__setitem__("write_complete", np.nan),
     "integer_positions": lambda f: retype(f, "particles/position", np.int16),
     "huge_velocity": lambda f: f["particles/velocity"].__setitem__((3, 0), 1.0e300),
+    "bad_tree_child": lambda f: f["checkpoint/orb_right"].__setitem__(0, 99),
+    "nan_tree_cut": lambda f: f["checkpoint/orb_cut"].__setitem__(0, np.nan),
 }
 def retype(f, name, kind):
     values = f[name][()].astype(kind)
@@ -75,4 +79,14 @@ expect nan_marker "is incomplete (no write_complete marker)"
 expect integer_positions \
     "the dataset /particles/position holds integers where floating-point values belong"
 expect huge_velocity "1 particles with a value above 1e150 in magnitude"
-echo "damaged checkpoints refused"
+# (a run that goes on a little past the checkpoint)
+sed -e 's/^ *t_end = .*/    t_end = 0.021/' "$input" > longer.nml
+for name in bad_tree_child nan_tree_cut; do
+    run "$np" longer.nml --restart "$name.h5" > "$name.restart.log" 2>&1 || \
+        fail "--restart of $name.h5 failed:" "$name.restart.log"
+    grep -q "warning: restart: the decomposition stored in '$name.h5' is damaged" \
+        "$name.restart.log" || fail "no warning for $name.h5:" "$name.restart.log"
+    grep -q "(decomposition rebuilt)" "$name.restart.log" || \
+        fail "$name.h5's decomposition was not rebuilt:" "$name.restart.log"
+done
+echo "damaged checkpoints refused, damaged decompositions rebuilt"
