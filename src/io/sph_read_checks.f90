@@ -17,11 +17,11 @@ module sph_read_checks
     private
     public :: check_read_particles, append_problems
 
-    integer, parameter :: N_PROBLEMS = 7
+    integer, parameter :: N_PROBLEMS = 9
     !> The largest magnitude taken: squares and products of a few such values stay finite
     !> (a velocity of 1e300 m/s overflowed in the first time step limit)
     real(wp), parameter :: LARGEST_VALUE = 1.0e150_wp
-    character(len=*), parameter :: PROBLEM_TEXT(N_PROBLEMS) = [character(len=96) :: &
+    character(len=*), parameter :: PROBLEM_TEXT(N_PROBLEMS) = [character(len=128) :: &
         'particles of a kind other than 0 (fluid), 1 (wall) or 2 (virtual)', &
         'particles not finite (position, velocity, density, mass or energy)', &
         'fluid or wall particles with mass <= 0 or density <= 0', &
@@ -29,7 +29,10 @@ module sph_read_checks
         'particles of a level outside the input''s levels', &
         'wall particles of a solid the input does not have', &
         'particles with a value above 1e150 in magnitude (position, velocity, density, ' // &
-        'mass or energy)']
+        'mass or energy)', &
+        'particles whose smoothing length is not finite, not > 0 or above 1e150', &
+        'particles whose stored rates or wall data (acceleration, density_rate, ' // &
+        'energy_rate, wall_normal, wall_distance) are not finite or above 1e150']
 
 contains
 
@@ -55,16 +58,27 @@ contains
         do i = 1, p%n_owned
             real_kind = p%kind(i) == KIND_FLUID .or. p%kind(i) == KIND_WALL
             if (.not. (real_kind .or. p%kind(i) == KIND_VIRTUAL)) call problem(1)
+            ! (no comparison with a NaN: it traps where floating-point exceptions do)
             if (.not. (all(ieee_is_finite(p%x(:, i))) .and. all(ieee_is_finite(p%v(:, i))) &
                        .and. ieee_is_finite(p%rho(i)) .and. ieee_is_finite(p%m(i)) .and. &
                        ieee_is_finite(p%e(i)))) then
                 call problem(2)
-            else if (any(abs(p%x(:, i)) > LARGEST_VALUE) .or. any(abs(p%v(:, i)) > &
+            else
+                if (any(abs(p%x(:, i)) > LARGEST_VALUE) .or. any(abs(p%v(:, i)) > &
                     LARGEST_VALUE) .or. max(abs(p%rho(i)), abs(p%m(i)), abs(p%e(i))) > &
-                    LARGEST_VALUE) then
-                call problem(7)
+                    LARGEST_VALUE) call problem(7)
+                if (real_kind .and. .not. (p%m(i) > 0.0_wp .and. p%rho(i) > 0.0_wp)) &
+                    call problem(3)
             end if
-            if (real_kind .and. .not. (p%m(i) > 0.0_wp .and. p%rho(i) > 0.0_wp)) call problem(3)
+            ! (a checkpoint's: a Verlet step starts from the rates)
+            if (.not. usable([p%dvdt(:, i), p%drhodt(i), p%dedt(i), p%wall_normal(:, i), &
+                p%wall_distance(i)])) call problem(9)
+            ! (the health check compares positions with it)
+            if (.not. ieee_is_finite(p%h(i))) then
+                call problem(8)
+            else if (.not. (p%h(i) > 0.0_wp .and. p%h(i) <= LARGEST_VALUE)) then
+                call problem(8)
+            end if
             ! (virtual particles carry hashed ids, of either sign, that no real one has)
             if (real_kind .and. p%id(i) <= 0) call problem(4)
             if (p%level(i) < 0 .or. p%level(i) >= n_levels) call problem(5)
@@ -85,6 +99,14 @@ contains
             message(3:) // '; refused (a file edited or damaged outside sphremesh?)'
 
     contains
+
+        !> Every value finite and at most LARGEST_VALUE in magnitude (no comparison with a
+        !> NaN, which traps where floating-point exceptions do).
+        pure logical function usable(values)
+            real(wp), intent(in) :: values(:)
+            usable = all(ieee_is_finite(values))
+            if (usable) usable = all(abs(values) <= LARGEST_VALUE)
+        end function usable
 
         subroutine problem(which)
             integer, intent(in) :: which

@@ -2,7 +2,8 @@
 # Regression: a checkpoint edited or damaged outside sphremesh (a NaN position, an id given
 # twice, a kind no run writes, a zero density, a NaN time; ids, or a checkpoint-only integer
 # field, rewritten as floating point with a NaN; positions rewritten as integers; a velocity
-# of 1e300 m/s; a NaN completion marker) is refused by
+# of 1e300 m/s; a NaN smoothing length, density or stored acceleration; a NaN completion
+# marker) is refused by
 # --restart and by --remesh with one message naming the file and the problem, on every rank
 # alike (before, such files stopped the run later with a floating-point trap, or hung it; a
 # NaN where an integer belongs trapped inside HDF5's conversion in a debug build). A damaged
@@ -33,6 +34,9 @@ edits = {
     "nan_marker": lambda f: f.attrs.__setitem__("write_complete", np.nan),
     "integer_positions": lambda f: retype(f, "particles/position", np.int16),
     "huge_velocity": lambda f: f["particles/velocity"].__setitem__((3, 0), 1.0e300),
+    "nan_smoothing_length": lambda f: f["particles/smoothing_length"].__setitem__(5, np.nan),
+    "nan_density": lambda f: f["particles/density"].__setitem__(5, np.nan),
+    "nan_acceleration": lambda f: f["particles/acceleration"].__setitem__((5, 0), np.nan),
     "bad_tree_child": lambda f: f["checkpoint/orb_right"].__setitem__(0, 99),
     "nan_tree_cut": lambda f: f["checkpoint/orb_cut"].__setitem__(0, np.nan),
 }
@@ -79,6 +83,9 @@ expect nan_marker "is incomplete (no write_complete marker)"
 expect integer_positions \
     "the dataset /particles/position holds integers where floating-point values belong"
 expect huge_velocity "1 particles with a value above 1e150 in magnitude"
+expect nan_smoothing_length "1 particles whose smoothing length is not finite"
+expect nan_density "1 particles not finite (position, velocity, density, mass or energy)"
+expect nan_acceleration "1 particles whose stored rates or wall data .* are not finite" restart
 # (a run that goes on a little past the checkpoint)
 sed -e 's/^ *t_end = .*/    t_end = 0.021/' "$input" > longer.nml
 for name in bad_tree_child nan_tree_cut; do
