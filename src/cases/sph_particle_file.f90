@@ -32,8 +32,11 @@ module sph_particle_file
     public :: read_initial_particles
 
     ! the per-particle problems, counted over all ranks and shown with a first example
-    integer, parameter :: n_problems = 8
-    character(len=*), parameter :: problem_text(n_problems) = [character(len=64) :: &
+    integer, parameter :: n_problems = 9
+    !> The largest magnitude taken (sph_read_checks' bound: squares and products of a few
+    !> such values stay finite)
+    real(wp), parameter :: LARGEST_VALUE = 1.0e150_wp
+    character(len=*), parameter :: problem_text(n_problems) = [character(len=96) :: &
         'particles of a kind other than 0 (fluid) or 1 (wall)', &
         'particles not finite (position, velocity, density or mass)', &
         'fluid particles outside the box', &
@@ -41,13 +44,17 @@ module sph_particle_file
         'wall particles outside every solid', &
         'particles with mass <= 0 or density <= 0', &
         'particles with id <= 0', &
-        'particles with z /= 0 in a 2D run (&domain dimension = 2)']
+        'particles with z /= 0 in a 2D run (&domain dimension = 2)', &
+        'particles with a value above 1e150 in magnitude (position, velocity, density or mass)']
 
     !> The optional datasets: name and width (0: one value per row).
     character(len=16), parameter :: optional_names(10) = [character(len=16) :: 'velocity', &
         'density', 'mass', 'energy', 'id', 'kind', 'level', 'solid', 'wall_normal', &
         'wall_distance']
     integer, parameter :: optional_widths(10) = [3, 0, 0, 0, 0, 0, 0, 0, 3, 0]
+    !> whether the dataset holds integers (id, kind, level, solid)
+    logical, parameter :: integral(10) = [.false., .false., .false., .false., .true., &
+        .true., .true., .true., .false., .false.]
 
 contains
 
@@ -130,6 +137,7 @@ contains
         integer(i4) :: value
         integer :: k, w, status
         integer(i8) :: rows
+        logical :: floats
         if (h5_attribute_exists(file, 'format')) then
             ! written by sphremesh: whole only with the marker, as restarts demand
             value = 0
@@ -144,18 +152,18 @@ contains
                 'dimension is ' // int_text(int(value, i8)) // ', &domain dimension is ' // &
                 int_text(int(dim, i8)) // ';'
         end if
-        n_rows = h5_dataset_rows(file, 'particles/position', width)
+        n_rows = h5_dataset_rows(file, 'particles/position', width, floats)
         have = .false.
-        if (n_rows < 0 .or. .not. (width == 3 .or. width == dim)) then
+        if (n_rows < 0 .or. .not. (width == 3 .or. width == dim) .or. .not. floats) then
             message = message // ' the dataset /particles/position (N x 3 float64) is ' // &
-                'missing or of another shape;'
+                'missing, of another shape or not floating point;'
             n_rows = 0
             return
         end if
         if (n_rows == 0) message = message // ' it holds no particle (/particles/position ' // &
             'has 0 rows);'
         do k = 1, size(optional_names)
-            rows = h5_dataset_rows(file, 'particles/' // trim(optional_names(k)), w)
+            rows = h5_dataset_rows(file, 'particles/' // trim(optional_names(k)), w, floats)
             if (rows < 0) cycle
             if (rows /= n_rows .or. (w /= optional_widths(k) .and. .not. &
                     (optional_widths(k) == 3 .and. w == dim))) then
@@ -163,6 +171,12 @@ contains
                     int_text(rows) // ' rows of width ' // int_text(int(max(w, 1), i8)) // &
                     ', expected ' // int_text(n_rows) // ' of width ' // &
                     int_text(int(max(optional_widths(k), 1), i8)) // ';'
+            else if (floats .neqv. .not. integral(k)) then
+                ! (HDF5 would convert it: floats rounded, a NaN trapping where floating-point
+                ! exceptions do; positions or masses written as integers truncated)
+                message = message // ' /particles/' // trim(optional_names(k)) // ' holds ' // &
+                    merge('floating-point values where integers belong;', &
+                          'integers where floating-point values belong;', integral(k))
             else
                 have(k) = .true.
             end if
@@ -249,8 +263,17 @@ contains
             if (.not. have(6)) p%kind(i) = KIND_FLUID
             if (p%kind(i) /= KIND_FLUID .and. p%kind(i) /= KIND_WALL) call problem(1)
             if (.not. (all(ieee_is_finite(p%x(:, i))) .and. all(ieee_is_finite(p%v(:, i))) &
-                       .and. ieee_is_finite(p%rho(i)) .and. ieee_is_finite(p%m(i)))) &
+                       .and. ieee_is_finite(p%rho(i)) .and. ieee_is_finite(p%m(i)))) then
+                ! (the checks below compare: with a NaN that traps where floating-point
+                ! exceptions do)
                 call problem(2)
+                cycle
+            end if
+            if (max(maxval(abs(p%x(:, i))), maxval(abs(p%v(:, i))), abs(p%rho(i)), &
+                abs(p%m(i))) > LARGEST_VALUE) then
+                call problem(9)
+                cycle
+            end if
             if (dim == 2 .and. p%x(3, i) /= 0.0_wp) call problem(8)
             if (p%kind(i) == KIND_FLUID) then
                 do axis = 1, dim

@@ -3,7 +3,8 @@
 
     make_bad_particles.py GOOD.h5 KIND OUT.h5
 
-KIND: missing_position, duplicate_id, outside_box, wrong_dimension (one defect each), or
+KIND: missing_position, duplicate_id, outside_box, wrong_dimension, integer_positions (the
+positions stored as int16), nan_density, huge_density (1e300 kg/m^3) (one defect each), or
 shuffled (the same particles, rows in a random order). GOOD.h5 is a file made by
 scripts/make_initial_particles.py.
 """
@@ -28,6 +29,11 @@ def main(good, kind, out):
         data = {name: values[order] for name, values in data.items()}
     elif kind == "wrong_dimension":
         dimension = 3
+    elif kind == "integer_positions":
+        data["position"] = data["position"].astype(np.int16)
+    elif kind in ("nan_density", "huge_density"):
+        data["density"] = data["density"].astype(np.float64)
+        data["density"][3] = np.nan if kind == "nan_density" else 1.0e300
     else:
         sys.exit(f"make_bad_particles: unknown kind '{kind}'")
     with h5py.File(out, "w") as f:
