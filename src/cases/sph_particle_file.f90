@@ -23,7 +23,7 @@ module sph_particle_file
     use sph_walls, only: wall_site
     use sph_eos, only: eos_pressure
     use sph_global_ids, only: find_duplicate_ids
-    use sph_read_checks, only: append_problems
+    use sph_read_checks, only: append_problems, LARGEST_VALUE
     use sph_hdf5, only: h5_file_t, h5_open_read, h5_close, h5_read_rows, h5_dataset_rows, &
         h5_read_attribute, h5_attribute_exists
     use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
@@ -33,9 +33,6 @@ module sph_particle_file
 
     ! the per-particle problems, counted over all ranks and shown with a first example
     integer, parameter :: n_problems = 9
-    !> The largest magnitude taken (sph_read_checks' bound: squares and products of a few
-    !> such values stay finite)
-    real(wp), parameter :: LARGEST_VALUE = 1.0e150_wp
     character(len=*), parameter :: problem_text(n_problems) = [character(len=96) :: &
         'particles of a kind other than 0 (fluid) or 1 (wall)', &
         'particles not finite (position, velocity, density or mass)', &

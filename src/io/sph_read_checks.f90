@@ -15,7 +15,7 @@ module sph_read_checks
     use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
     implicit none
     private
-    public :: check_read_particles, append_problems
+    public :: check_read_particles, append_problems, LARGEST_VALUE
 
     integer, parameter :: N_PROBLEMS = 9
     !> The largest magnitude taken: squares and products of a few such values stay finite
