@@ -393,12 +393,15 @@ module sph_stepper
         end subroutine simulation_setup
 
         !> Continue from a checkpoint file, or from the newest complete one in a directory.
-        !> On the rank count that wrote it the run continues bit for bit.
-        module subroutine simulation_restart(sim, env, cfg, from)
+        !> On the rank count that wrote it the run continues bit for bit. label: what its
+        !> errors and log lines name (default 'restart'; the offline refinement of regions
+        !> reads its IN this way).
+        module subroutine simulation_restart(sim, env, cfg, from, label)
             type(simulation_t), intent(out) :: sim
             type(mpi_env_t), intent(in) :: env
             type(config_t), intent(in) :: cfg
             character(len=*), intent(in) :: from
+            character(len=*), intent(in), optional :: label
         end subroutine simulation_restart
 
         ! (in sph_stepper_shared, as the submodules call them: gfortran emits no symbol for a

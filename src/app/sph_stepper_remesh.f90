@@ -457,7 +457,7 @@ contains
         call log_info('remesh: ' // in_path // ' -> ' // out_path // ', the &region groups ' // &
             'of ' // regions_path // ' refined')
         ! the restart's path: the regions refined (refine_if_uniform), the levels started
-        call simulation_restart(sim, env, cfg, in_path)
+        call simulation_restart(sim, env, cfg, in_path, 'remesh --regions')
         ! a verlet run continues from the rates of the state it reads (simulation_restart)
         if (sim%verlet) call evaluate_rates(sim, env)
         call checkpoint_balance(sim, balance)

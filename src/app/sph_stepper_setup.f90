@@ -83,37 +83,40 @@ contains
         real(wp) :: stored_dx
         real(wp), allocatable :: balance(:)
         integer :: n
+        character(len=:), allocatable :: what
 
+        what = 'restart'
+        if (present(label)) what = label
         call setup_common(sim, env, cfg)
         inquire(file=trim(from) // '/.', exist=is_directory)
         if (is_directory) then
             call find_latest_checkpoint(env, from, trim(cfg%run%case_name), path, skipped, stat, &
                 errmsg)
-            if (stat /= 0) call fatal_collective('restart', errmsg)
-            if (len(skipped) > 0) call log_info('restart: skipped' // skipped)
+            if (stat /= 0) call fatal_collective(what, errmsg)
+            if (len(skipped) > 0) call log_info(what // ': skipped' // skipped)
         else
             path = from
         end if
         call read_checkpoint(env, path, sim%p, sim%domain, sim%time, sim%step, stored_input, &
             index_text, same_layout, stat, errmsg, stored_dx, balance)
-        if (stat /= 0) call fatal_collective('restart', errmsg)
+        if (stat /= 0) call fatal_collective(what, errmsg)
         ! a multi-resolution state continued by an input without regions would run its fine
         ! and virtual particles as if they were of the one level (a two-level channel did,
         ! without a word)
         if (.not. multires(sim)) then
             if (global_max(env, int(count(sim%p%level(1:sim%p%n_owned) > 0 .or. &
                 sim%p%kind(1:sim%p%n_owned) == KIND_VIRTUAL), i8)) > 0) &
-                call fatal_collective('restart', 'the checkpoint holds a multi-resolution ' // &
+                call fatal_collective(what, 'the checkpoint holds a multi-resolution ' // &
                 'state (particles of finer levels and virtual particles): it continues with ' // &
                 'an input that has its &region groups (the input stored in it has them)')
         end if
         ! values no run writes (a file edited or damaged outside sphremesh) stop here, not
         ! later as a floating-point trap, an index out of range or a hang
-        if (.not. ieee_is_finite(sim%time)) call fatal_collective('restart', "'" // path // &
+        if (.not. ieee_is_finite(sim%time)) call fatal_collective(what, "'" // path // &
             "': its time is not finite; refused")
         call check_read_particles(env, sim%p, sim%zones%n_levels, size(sim%solids%list), &
             path, stat, errmsg)
-        if (stat /= 0) call fatal_collective('restart', errmsg)
+        if (stat /= 0) call fatal_collective(what, errmsg)
         ! the levels' balance as the checkpointed run had it (the reference mass, and for
         ! sub-cycled levels the pushes of the levels not evaluated at the next step)
         n = sim%zones%n_levels
@@ -131,15 +134,8 @@ contains
         sim%rates_stale = .true.
         if (stat == 0) then
             sim%rates_stale = trim(stored%numerics%integrator) /= 'verlet'
-            ! a checkpoint's rates are its own input's: with other physics (a body force
-            ! changed to continue) the first step would kick with the old ones
-            if (.not. sim%rates_stale .and. rates_inputs_differ(stored, cfg)) then
-                sim%rates_stale = .true.
-                call log_info('restart: the input differs from the checkpoint''s in what the ' &
-                    // 'rates depend on; its rates are evaluated anew')
-            end if
             mismatch = geometry_mismatch(stored, cfg)
-            if (len(mismatch) > 0) call fatal_collective('restart', mismatch)
+            if (len(mismatch) > 0) call fatal_collective(what, mismatch)
         end if
         ! a remeshed (refined or coarsened) checkpoint holds particles of another spacing:
         ! the input must say so (kernel, masses of new walls, time step follow from dx)
@@ -147,7 +143,17 @@ contains
             write(line, '(a,es15.8,a,es15.8,a)') "the checkpoint's particles have spacing " // &
                 'dx = ', stored_dx, ' m but &domain dx = ', cfg%domain%dx, &
                 ' m; set &domain dx to the checkpoint''s spacing to continue from it'
-            call fatal_collective('restart', trim(line))
+            call fatal_collective(what, trim(line))
+        end if
+        ! a checkpoint's rates are its own input's: with other physics (a body force changed
+        ! to continue) the first step would kick with the old ones (checked after the
+        ! refusals: a run that stops is not told that its rates will be evaluated)
+        if (.not. sim%rates_stale .and. stat == 0) then
+            if (rates_inputs_differ(stored, cfg)) then
+                sim%rates_stale = .true.
+                call log_info(what // ': the input differs from the checkpoint''s in what ' &
+                    // 'the rates depend on; its rates are evaluated anew')
+            end if
         end if
         if (cfg%remesh%every_time > 0.0_wp) sim%next_remesh_time = cfg%remesh%every_time * &
             (floor(sim%time / cfg%remesh%every_time * (1.0_wp + 1.0e-12_wp)) + 1)
@@ -156,7 +162,7 @@ contains
             call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
             call migrate(sim, env)
         end if
-        call refine_if_uniform(sim, env)
+        call refine_if_uniform(sim, env, what)
         call halo_setup(sim%halo, sim%domain, halo_reach(sim))
         call simulation_prepare_neighbours(sim, env)
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
@@ -165,16 +171,17 @@ contains
         write(line, '(a,es12.5,a,i0,a)') ' at t = ', sim%time, ' s, step ', sim%step, &
             merge(' (same decomposition)      ', ' (decomposition rebuilt)   ', same_layout)
         call log_info('continuing from ' // path // trim(line))
-        if (stored_input /= sim%input_text) call log_info('restart: the input differs from ' // &
-            'the one stored in the checkpoint; the new input is used')
+        if (stored_input /= sim%input_text) call log_info(what // ': the input differs ' // &
+            'from the one stored in the checkpoint; the new input is used')
         call log_setup(sim, env)
     end procedure simulation_restart
 
     !> A checkpoint of a uniform run continued with &region groups: the regions are refined
     !> (sph_transition_driver refine_uniform_state) and the decomposition rebalanced.
-    subroutine refine_if_uniform(sim, env)
+    subroutine refine_if_uniform(sim, env, what)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
+        character(len=*), intent(in) :: what
         integer(i8) :: before
         character(len=160) :: line
         if (.not. multires(sim)) return
@@ -189,8 +196,8 @@ contains
         sim%rates_stale = .true.
         call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
         call migrate(sim, env)
-        write(line, '(a,i0,a,i0,a)') 'restart: the checkpoint is uniform; its regions were ' // &
-            'refined (', before, ' -> ', global_sum(env, int(sim%p%n_owned, i8)), ' particles)'
+        write(line, '(a,i0,a,i0,a)') what // ': the checkpoint is uniform; its regions were ' &
+            // 'refined (', before, ' -> ', global_sum(env, int(sim%p%n_owned, i8)), ' particles)'
         call log_info(trim(line))
     end subroutine refine_if_uniform
 

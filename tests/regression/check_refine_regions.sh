@@ -7,7 +7,8 @@
 # and fields bit for bit. (Before, the restart (a) started its first step from the uniform
 # state's rates, none for the new particles: velocities 0.2 % of the peak off.) Refused with
 # a message and nothing written: --regions with another mode, an input without &region
-# groups, an IN that is multi-resolution already, an OUT that exists.
+# groups, an IN that is multi-resolution already, an input of another spacing (named as the
+# offline command's error, not a restart's), an OUT that exists.
 # usage: check_refine_regions.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM UNIFORM.nml MULTIRES.nml
 #        WORKDIR PYTHON COMPARER
 set -u
@@ -52,6 +53,11 @@ expect_refusal no_regions "has no &region groups: nothing to refine" x.h5 \
     --remesh refine "$checkpoint" x.h5 --regions uniform.nml
 expect_refusal multires_in "holds a multi-resolution state already" x.h5 \
     --remesh refine refined.h5 x.h5 --regions b.nml
+sed -e 's/^ *dx = .*/    dx = 2.5e-5/' b.nml > fine.nml
+expect_refusal other_spacing "error in remesh --regions: the checkpoint's particles have spacing" \
+    x.h5 --remesh refine "$checkpoint" x.h5 --regions fine.nml
+grep -q "evaluated anew" other_spacing.log && fail "a refused input was told of its rates:" \
+    other_spacing.log
 cp refined.h5 kept.h5
 if run 1 --remesh refine "$checkpoint" refined.h5 --regions b.nml > exists.log 2>&1; then
     fail "an existing OUT was replaced:" exists.log
