@@ -3,6 +3,8 @@
 !> Split from sph_stepper so that each file holds one concern; the interfaces and their
 !> documentation are in sph_stepper.
 submodule (sph_stepper) sph_stepper_setup
+    use sph_domain, only: domain_owner
+    use sph_logger, only: log_warn
     implicit none
 
 contains
@@ -161,6 +163,13 @@ contains
         if (.not. same_layout) then
             call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
             call migrate(sim, env)
+        else if (misplaced(sim, env) > 0) then
+            ! rows per rank that do not match the stored decomposition (edited outside
+            ! sphremesh, though they still sum to the count): a rank would have missed the
+            ! neighbours of particles outside its region
+            call log_warn(what // ": the rows stored per rank in '" // path // "' do not " // &
+                'match its decomposition; the particles are handed to their owners')
+            call migrate(sim, env)
         end if
         call refine_if_uniform(sim, env, what)
         call halo_setup(sim%halo, sim%domain, halo_reach(sim))
@@ -175,6 +184,20 @@ contains
             'from the one stored in the checkpoint; the new input is used')
         call log_setup(sim, env)
     end procedure simulation_restart
+
+    !> The number of particles (all ranks) that lie outside their rank's region (collective).
+    !> A checkpoint is written after the particles were handed to their owners: none.
+    integer(i8) function misplaced(sim, env)
+        type(simulation_t), intent(in) :: sim
+        type(mpi_env_t), intent(in) :: env
+        integer :: i
+        integer(i8) :: n
+        n = 0
+        do i = 1, sim%p%n_owned
+            if (domain_owner(sim%domain, sim%p%x(:, i)) /= env%rank) n = n + 1
+        end do
+        misplaced = global_sum(env, n)
+    end function misplaced
 
     !> A checkpoint of a uniform run continued with &region groups: the regions are refined
     !> (sph_transition_driver refine_uniform_state) and the decomposition rebalanced.
