@@ -103,7 +103,8 @@ contains
     end function bytes_text
 
     !> How the geometry of a checkpoint's stored input differs from `cfg`'s ('' if it
-    !> does not): the dimension, the box, the kind of every face and the &body groups.
+    !> does not): the dimension, the box, the kind of every face, the &body groups and, for a
+    !> multi-resolution checkpoint, the &region groups.
     !> The checkpoint holds the wall and body particles laid for its own geometry, so a
     !> restart with another would run in a box half empty, without the walls its faces now
     !> ask for, or with fluid inside a new body (each of these ran before, to a health
@@ -157,6 +158,44 @@ contains
                 end if
             end associate
         end do
+        text = regions_mismatch()
+    contains
+        !> A multi-resolution checkpoint's particles have the levels of its own &region groups:
+        !> with others, the zones' virtual particles would be made about interfaces where the
+        !> levels do not meet (a band moved by 2 coarse spacings ran on, its fine particles
+        !> where they were, 8 times the interpolation fallbacks). A uniform checkpoint takes
+        !> any regions: they are refined at the restart.
+        function regions_mismatch() result(why)
+            character(len=:), allocatable :: why
+            integer :: r, n_stored, n_input
+            character(len=*), parameter :: HOW = ' (a multi-resolution state continues with ' &
+                // "the &region groups it was written with, stored in it; to place regions " // &
+                'anew, restart a uniform checkpoint with them)'
+            why = ''
+            n_stored = 0
+            n_input = 0
+            if (allocated(stored%regions)) n_stored = size(stored%regions)
+            if (allocated(cfg%regions)) n_input = size(cfg%regions)
+            if (n_stored == 0 .or. n_input == 0) return
+            if (n_stored /= n_input) then
+                why = 'the checkpoint has ' // trim(int_text(int(n_stored, i8))) // &
+                    ' &region group(s) but the input ' // trim(int_text(int(n_input, i8))) // HOW
+                return
+            end if
+            do r = 1, n_input
+                associate (a => stored%regions(r), b => cfg%regions(r))
+                    if (trim(a%shape) /= trim(b%shape) .or. a%level /= b%level .or. &
+                        trim(a%body) /= trim(b%body) .or. &
+                        any(abs(a%lo - b%lo) > 1.0e-12_wp * scale) .or. &
+                        any(abs(a%hi - b%hi) > 1.0e-12_wp * scale) .or. &
+                        abs(a%distance - b%distance) > 1.0e-12_wp * scale) then
+                        why = "the checkpoint's &region " // trim(int_text(int(r, i8))) // &
+                            " differs from the input's in shape, place, level or distance" // HOW
+                        return
+                    end if
+                end associate
+            end do
+        end function regions_mismatch
     end procedure geometry_mismatch
 
     module procedure rates_inputs_differ

@@ -4,7 +4,10 @@
 # input without &region groups (before: the fine and virtual particles ran as one level, no
 # word said) and remeshed offline (before: both levels mixed into one set, 2020 particles and
 # 7380 irregular cells); both stop with a message, and the remesh writes nothing. A coarsening
-# is refused with that message alone.
+# is refused with that message alone. Continued with its band moved by two coarse spacings,
+# it stops with a message naming the &region (before: the fine particles stayed where they
+# were and the zones were made about the new interfaces, 8 times the interpolation
+# fallbacks, exit status 0); the band as stored continues.
 # usage: check_multires_refusals.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM MULTIRES.nml UNIFORM.nml
 #        WORKDIR
 set -u
@@ -39,4 +42,16 @@ grep -q "error in remesh: IN '.*' holds a multi-resolution state" coarsen.log ||
     fail "no message for the coarsening:" coarsen.log
 if grep -q "warning" coarsen.log; then fail "a warning came with the refusal:" coarsen.log; fi
 [ ! -e coarse.h5 ] || fail "the refused coarsening wrote coarse.h5"
-echo "a two-level checkpoint: uniform restart and --remesh refused"
+sed -e 's/^ *lo = 0.0, 0.25e-3/    lo = 0.0, 0.35e-3/' \
+    -e 's/^ *hi = 0.5e-3, 0.75e-3/    hi = 0.5e-3, 0.85e-3/' \
+    -e 's/^ *t_end = .*/    t_end = 0.003/' two.nml > moved.nml
+cmp -s two.nml moved.nml && fail "moving the band in the input failed (input changed?)"
+if run "$np" moved.nml --restart "$checkpoint" > moved.log 2>&1; then
+    fail "a two-level checkpoint continued with its band moved:" moved.log
+fi
+grep -q "error in restart: the checkpoint's &region 1 differs from the input's" moved.log || \
+    fail "no message for the moved band:" moved.log
+sed -e 's/^ *t_end = .*/    t_end = 0.003/' two.nml > longer.nml
+run "$np" longer.nml --restart "$checkpoint" > longer.log 2>&1 || \
+    fail "the two-level run did not continue with its own band:" longer.log
+echo "a two-level checkpoint: uniform restart, --remesh and moved regions refused"
