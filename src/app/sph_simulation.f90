@@ -2,7 +2,7 @@
 !> schedule says is due: snapshot, checkpoint, log line) and the final report. The state and
 !> the step are in sph_stepper, the bookkeeping of when things are due in sph_schedule.
 module sph_simulation
-    use sph_kinds, only: wp
+    use sph_kinds, only: wp, i8
     use sph_config, only: config_t
     use sph_mpi_env, only: mpi_env_t
     use sph_errors, only: fatal_collective
@@ -10,6 +10,8 @@ module sph_simulation
         simulation_step, simulation_rebalance, simulation_write_snapshot
     use sph_schedule, only: schedule_t, schedule_init, schedule_dt_cap, schedule_after_step, &
         schedule_final_report, log_progress_header
+    use sph_earlier_output, only: set_aside_earlier_output
+    use sph_logger, only: log_warn
     use sph_step_timers, only: timers_start, timers_stop, timers_enter, timers_leave, &
         TIMER_OTHER, TIMER_OUTPUT
     implicit none
@@ -34,8 +36,10 @@ contains
             if (sim%time >= cfg%run%t_end * (1.0_wp - 1.0e-12_wp)) &
                 call fatal_collective('restart', &
                 'the checkpoint is already at the end time; raise &run t_end to continue the run')
+            call keep_earlier_output(env, cfg, sim%step)
         else
             call simulation_setup(sim, env, cfg)
+            call keep_earlier_output(env, cfg, -1_i8)
             call simulation_write_snapshot(sim, env)
         end if
         call schedule_init(sched, cfg, sim%time, sim%step)
@@ -54,4 +58,31 @@ contains
         call schedule_final_report(sched, sim, env)
         status = merge(75, 0, len(sched%stopped_by) > 0)
     end subroutine simulation_run
+
+    !> The files of an earlier run that this one could overwrite set aside before its first
+    !> output (sph_earlier_output): after_step < 0 for a fresh run, else the restart's step.
+    subroutine keep_earlier_output(env, cfg, after_step)
+        type(mpi_env_t), intent(in) :: env
+        type(config_t), intent(in) :: cfg
+        integer(i8), intent(in) :: after_step
+        character(len=:), allocatable :: folder, errmsg
+        character(len=16) :: count_text
+        integer :: moved, stat
+        call set_aside_earlier_output(env, trim(cfg%output%output_dir), &
+            trim(cfg%run%case_name), after_step, moved, folder, stat, errmsg)
+        if (stat /= 0) call fatal_collective('output', errmsg // '; nothing was ' // &
+            'overwritten: move the earlier files away or choose another &output output_dir')
+        if (moved == 0) return
+        write(count_text, '(i0)') moved
+        if (after_step < 0) then
+            call log_warn("output: '" // trim(cfg%output%output_dir) // "' held " // &
+                trim(count_text) // " file(s) of an earlier run of case '" // &
+                trim(cfg%run%case_name) // "'; moved to '" // folder // "' (nothing is " // &
+                'overwritten)')
+        else
+            call log_warn("output: '" // trim(cfg%output%output_dir) // "' held " // &
+                trim(count_text) // ' file(s) of steps after the checkpoint (an earlier ' // &
+                "continuation); moved to '" // folder // "' (nothing is overwritten)")
+        end if
+    end subroutine keep_earlier_output
 end module sph_simulation

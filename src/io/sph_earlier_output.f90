@@ -1,0 +1,157 @@
+!> Output of an earlier run set aside before a run would overwrite it. A run writes its files
+!> under fixed names (`<case>_<step>.h5`, `<case>_checkpoint_<step>.h5`, `<case>.xdmf`, ...):
+!> started again into the same `output_dir`, or continued from a checkpoint older than the
+!> newest files there, it would replace an earlier run's results without a word (a second run
+!> of the same input replaced every snapshot and checkpoint of the first). So before its first
+!> output a run moves the files it could overwrite into a new folder
+!> `<output_dir>/<case>_earlier_<N>` (N the first free number), all together, so that the
+!> moved `.xdmf` still opens the moved snapshots (it names them without a folder), and says
+!> so in the log:
+!>  - a fresh run: every file of its case (snapshots, checkpoints, failure snapshots, the
+!>    `.xdmf` and the forces file);
+!>  - a restart at step S: the snapshots, checkpoints and failure snapshots of steps after S
+!>    (the `.xdmf` and the forces file are continued, as before).
+!> A run continued from the newest checkpoint of a run that stopped there (a job chain) has
+!> nothing to set aside. Files of other cases and `.tmp` leftovers are not touched.
+module sph_earlier_output
+    use sph_kinds, only: i8
+    use sph_mpi_env, only: mpi_env_t, broadcast_text
+    use sph_filesystem, only: list_directory, make_directories, rename_file
+    implicit none
+    private
+    public :: set_aside_earlier_output, earlier_file_step, FILE_NOT_OURS, FILE_NO_STEP
+
+    !> earlier_file_step's results for a name that is not one of the case's files, and for
+    !> one of them without a step (the `.xdmf`, the forces file)
+    integer(i8), parameter :: FILE_NOT_OURS = -2_i8
+    integer(i8), parameter :: FILE_NO_STEP = -1_i8
+    !> the folders `<case>_earlier_1` ... tried before giving up
+    integer, parameter :: MAX_EARLIER = 9999
+
+contains
+
+    !> The step of `name` when it is one of the files a run of `case_name` writes:
+    !> `<case>_<step>.h5`, `<case>_checkpoint_<step>.h5`, `<case>_failure_<step>.h5` (the
+    !> step: decimal digits only); FILE_NO_STEP for `<case>.xdmf` and `<case>_forces.csv`;
+    !> FILE_NOT_OURS for anything else (another case's files, `.tmp` leftovers, folders).
+    pure integer(i8) function earlier_file_step(name, case_name) result(step)
+        character(len=*), intent(in) :: name, case_name
+        character(len=*), parameter :: MIDDLES(3) = [character(len=12) :: '', 'checkpoint_', &
+            'failure_']
+        character(len=:), allocatable :: prefix, digits
+        integer :: k, n
+        step = FILE_NOT_OURS
+        if (name == case_name // '.xdmf' .or. name == case_name // '_forces.csv') then
+            step = FILE_NO_STEP
+            return
+        end if
+        n = len(name)
+        if (n < 4) return
+        if (name(n - 2:) /= '.h5') return
+        do k = 1, size(MIDDLES)
+            prefix = case_name // '_' // trim(MIDDLES(k))
+            if (n <= len(prefix) + 3) cycle
+            if (name(1:len(prefix)) /= prefix) cycle
+            digits = name(len(prefix) + 1:n - 3)
+            ! (at most 18 digits: an integer(i8) holds them)
+            if (len(digits) > 18 .or. verify(digits, '0123456789') /= 0) cycle
+            step = digits_value(digits)
+            return
+        end do
+    end function earlier_file_step
+
+    pure integer(i8) function digits_value(digits) result(v)
+        character(len=*), intent(in) :: digits
+        integer :: k
+        v = 0
+        do k = 1, len(digits)
+            v = 10 * v + (iachar(digits(k:k)) - iachar('0'))
+        end do
+    end function digits_value
+
+    !> Move the files of `case_name` in `directory` that this run could overwrite into a new
+    !> folder `<directory>/<case>_earlier_<N>` (module header): after_step < 0 for a fresh
+    !> run (all of them), else the step the run continues from (the stepped files after it).
+    !> Collective; rank 0 moves. moved: how many files (0: nothing there, or no directory
+    !> yet); folder: where they went. stat /= 0 with errmsg when a file could not be moved
+    !> (then the ones moved before it are in folder, and nothing was overwritten).
+    subroutine set_aside_earlier_output(env, directory, case_name, after_step, moved, folder, &
+            stat, errmsg)
+        type(mpi_env_t), intent(in) :: env
+        character(len=*), intent(in) :: directory, case_name
+        integer(i8), intent(in) :: after_step
+        integer, intent(out) :: moved, stat
+        character(len=:), allocatable, intent(out) :: folder, errmsg
+        character(len=:), allocatable :: listing, name, result_text
+        character(len=32) :: number
+        integer :: start, k, list_stat, n
+        integer(i8) :: step
+        logical :: exists
+
+        moved = 0
+        stat = 0
+        folder = ''
+        errmsg = ''
+        result_text = ''
+        if (env%rank == 0) then
+            call list_directory(directory, listing, list_stat)
+            ! (a directory that cannot be listed does not exist yet: the output makes it)
+            if (list_stat /= 0) listing = ''
+            start = 1
+            do k = 1, len(listing)
+                if (listing(k:k) /= new_line('a')) cycle
+                name = listing(start:k - 1)
+                start = k + 1
+                step = earlier_file_step(name, case_name)
+                if (step == FILE_NOT_OURS) cycle
+                if (after_step >= 0 .and. step <= after_step) cycle
+                if (moved == 0) then
+                    call new_folder(folder, stat)
+                    if (stat /= 0) then
+                        errmsg = "cannot make a folder '" // directory // '/' // case_name // &
+                            "_earlier_N' for the earlier output there"
+                        exit
+                    end if
+                end if
+                call rename_file(directory // '/' // name, folder // '/' // name, stat)
+                if (stat /= 0) then
+                    errmsg = "cannot move '" // directory // '/' // name // "' to '" // &
+                        folder // "'"
+                    exit
+                end if
+                moved = moved + 1
+            end do
+            ! (to the other ranks as lines: the counts, the folder, the message)
+            write(number, '(i0, 1x, i0)') stat, moved
+            result_text = trim(number) // new_line('a') // folder // new_line('a') // errmsg
+        end if
+        call broadcast_text(env, result_text)
+        n = index(result_text, new_line('a'))
+        read(result_text(1:n - 1), *) stat, moved
+        result_text = result_text(n + 1:)
+        n = index(result_text, new_line('a'))
+        folder = result_text(1:n - 1)
+        errmsg = result_text(n + 1:)
+
+    contains
+
+        !> The first `<directory>/<case>_earlier_<N>` that does not exist, made.
+        subroutine new_folder(path, st)
+            character(len=:), allocatable, intent(out) :: path
+            integer, intent(out) :: st
+            integer :: m
+            character(len=16) :: digits
+            st = 1
+            do m = 1, MAX_EARLIER
+                write(digits, '(i0)') m
+                path = directory // '/' // case_name // '_earlier_' // trim(digits)
+                inquire(file=path // '/.', exist=exists)
+                if (exists) cycle
+                inquire(file=path, exist=exists)
+                if (exists) cycle
+                call make_directories(path, st)
+                return
+            end do
+        end subroutine new_folder
+    end subroutine set_aside_earlier_output
+end module sph_earlier_output

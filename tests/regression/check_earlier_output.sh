@@ -1,0 +1,56 @@
+#!/usr/bin/env bash
+# Regression: a run never overwrites an earlier run's output. The short Poiseuille case (a
+# checkpoint every 50 steps, snapshots every 0.005 s) is run, then run again into the same
+# output_dir: the first run's files are moved, byte for byte, into output/<case>_earlier_1,
+# whose .xdmf still opens them (before: every snapshot and checkpoint was replaced without a
+# word). A restart from the step-100 checkpoint moves the files of later steps into
+# <case>_earlier_2 and keeps the rest; a restart from the newest checkpoint (a job chain) moves
+# nothing.
+# usage: check_earlier_output.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM INPUT.nml WORKDIR PYTHON
+#        XDMF_CHECKER
+set -u
+mpiexec=$1 np_flag=$2 np=$3 extra=$4 program=$5 input=$6 work=$7 python=$8 checker=$9
+run() { "$mpiexec" "$np_flag" "$np" $extra "$program" "$@"; }
+fail() { echo "$1"; [ -n "${2:-}" ] && cat "$2"; exit 1; }
+rm -rf "$work" && mkdir -p "$work" && cd "$work" || exit 1
+
+sed -e "s#^ *output_dir = .*#    output_dir = 'output'#" \
+    -e 's/^ *output_interval = .*/    output_interval = 0.005/' "$input" > case.nml
+printf "&restart\n    checkpoint_interval_steps = 50\n    checkpoints_kept = 10\n/\n" >> case.nml
+run case.nml > first.log 2>&1 || fail "the first run failed:" first.log
+case=$(sed -n "s/^ *case_name = '\(.*\)'.*/\1/p" case.nml)
+[ -n "$case" ] || case=poiseuille
+mkdir first && cp output/* first/ || fail "no output from the first run"
+grep -q "warning: output:" first.log && fail "the first run set something aside:" first.log
+
+run case.nml > second.log 2>&1 || fail "the second run failed:" second.log
+held="held $(ls first | wc -l) file(s) of an earlier run of case '$case'"
+grep -q "warning: output: 'output' $held; moved to 'output/${case}_earlier_1'" second.log || \
+    fail "no warning naming the moved files:" second.log
+for f in first/*; do
+    cmp -s "$f" "output/${case}_earlier_1/$(basename "$f")" || \
+        fail "$(basename "$f") of the first run was not kept as it was"
+done
+"$python" "$checker" "output/${case}_earlier_1/$case.xdmf" > xdmf.log 2>&1 || \
+    fail "the moved .xdmf does not open the moved snapshots:" xdmf.log
+
+run case.nml --restart "output/${case}_checkpoint_000100.h5" > restart.log 2>&1 || \
+    fail "the restart at step 100 failed:" restart.log
+later="of steps after the checkpoint (an earlier continuation)"
+grep -q "$later; moved to 'output/${case}_earlier_2'" restart.log || \
+    fail "no warning for the later files:" restart.log
+for f in output/"${case}"_earlier_2/*; do
+    step=$(basename "$f" .h5 | sed 's/.*_0*\([0-9]\)/\1/')
+    [ "$step" -gt 100 ] || fail "$(basename "$f") (step $step) was moved by the restart at 100"
+done
+[ -e "output/${case}_checkpoint_000100.h5" ] || fail "the restart moved its own checkpoint"
+[ -e "output/${case}_000000.h5" ] || fail "the restart moved the first snapshot"
+
+newest=$(ls output/"${case}"_checkpoint_*.h5 | tail -1)
+sed -e 's/^ *t_end = .*/    t_end = 0.03/' case.nml > longer.nml
+run longer.nml --restart output > chain.log 2>&1 || fail "the chained restart failed:" chain.log
+grep -q "continuing from $newest" chain.log || fail "the chain did not continue from $newest:" \
+    chain.log
+grep -q "warning: output:" chain.log && fail "the chained restart set files aside:" chain.log
+[ ! -e "output/${case}_earlier_3" ] || fail "the chained restart made a folder"
+echo "earlier output set aside, never overwritten"
