@@ -105,7 +105,7 @@ module sph_remesh_driver
     implicit none
     private
     public :: remesh_report_t, remesh_fluid, remesh_mode_code, remesh_spacing_factor
-    public :: fluid_mass_momentum, restore_momentum, accurate_sum
+    public :: fluid_mass_momentum, restore_momentum, accurate_sum, with_mirrors
     public :: REMESH_NONE, REMESH_REFINE, REMESH_COARSEN, REMESH_SAME
 
     integer, parameter :: REMESH_NONE = 0
