@@ -171,6 +171,11 @@ contains
             cfg%numerics, cfg%fluid)
         if (sum(grp%n_errors) == 0) call check_analytic_channel(grp(1), cfg%run%analytic, &
             cfg%domain, cfg%fluid%body_force)
+        ! (the references' series divide by the viscosity: nu = 0 trapped at the first snapshot)
+        if (sum(grp%n_errors) == 0 .and. trim(cfg%run%analytic) /= 'none' .and. &
+            .not. cfg%fluid%nu > 0.0_wp) call grp(1)%error('analytic', "'" // &
+            trim(cfg%run%analytic) // "' describes a viscous flow: it needs &fluid nu > 0 " // &
+            "(or analytic = 'none')")
         ! the analytic references describe an empty channel
         if (sum(grp%n_errors) == 0 .and. trim(cfg%run%analytic) /= 'none' .and. &
             size(bodies) > 0) call grp(1)%error('analytic', "'" // trim(cfg%run%analytic) // &

@@ -255,6 +255,14 @@ contains
             'transition_width', real_text(ref%transition_width) // ' m is narrower than one ' // &
             'kernel support of level 0: must be >= ' // nice(minimum) // ' m (or 0 = ' // &
             'automatic, that support)')
+        ! (a zone wider than the box covers all of it, and the refinement of a uniform state
+        ! placed periodic images that far away: 1e10 m overflowed the cell index)
+        associate (largest => maxval(dom%box_hi(1:dom%dimension) - dom%box_lo(1:dom%dimension)))
+            if (ref%transition_width > largest) call ref_grp%error('transition_width', &
+                real_text(ref%transition_width) // ' m is wider than the box (its largest ' // &
+                'length ' // nice(largest) // ' m): must be at most that (or 0 = automatic, ' // &
+                'one kernel support of level 0)')
+        end associate
 
         if (size(regions) == 0) then
             if (ref_grp%line > 0) call ref_grp%error('(group)', 'given without any &region: ' // &
