@@ -9,7 +9,7 @@ module sph_schedule
     use sph_config, only: config_t
     use sph_mpi_env, only: mpi_env_t, global_max, global_sum
     use sph_memory, only: peak_resident_bytes
-    use sph_logger, only: log_info
+    use sph_logger, only: log_info, fixed_text
     use sph_rates, only: local_max_speed
     use sph_reference, only: steady_after
     use sph_stepper, only: simulation_t, simulation_write_snapshot, &
@@ -303,15 +303,13 @@ contains
         call simulation_log_forces(sim, env)
         if (trim(sim%ref%name) == 'none') return
         error = simulation_analytic_error(sim, env)
-        write(line, '(a,es12.5,a,f9.5,a)') 'error against the analytic ' // &
-            trim(sim%ref%name) // ' solution at t = ', sim%time, ' s: relative L2 = ', &
-            100.0_wp * error, ' %'
-        call log_info(trim(line))
+        write(line, '(a,es12.5,a)') 'error against the analytic ' // &
+            trim(sim%ref%name) // ' solution at t = ', sim%time, ' s: relative L2 = '
+        call log_info(trim(line) // ' ' // fixed_text(100.0_wp * error, 9, 5) // ' %')
         if (sim%time > steady_after(sim%ref)) then
             error = simulation_analytic_error(sim, env, steady=.true.)
-            write(line, '(a,f9.5,a)') 'error against the steady profile: relative L2 = ', &
-                100.0_wp * error, ' %'
-            call log_info(trim(line))
+            call log_info('error against the steady profile: relative L2 = ' // &
+                fixed_text(100.0_wp * error, 9, 5) // ' %')
         end if
     end subroutine schedule_final_report
 

@@ -5,6 +5,7 @@
 !> Split from sph_stepper so that each file holds one concern; the interfaces and their
 !> documentation are in sph_stepper.
 submodule (sph_stepper) sph_stepper_output
+    use sph_logger, only: fixed_text
     use sph_mpi_env, only: global_min
     use sph_particles, only: KIND_VIRTUAL, ALL_FIELDS, pack_widths
     use sph_reference, only: relative_l2_error, relative_l2_from_sums
@@ -293,8 +294,8 @@ contains
         message = 'snapshot t = ' // trim(line) // ' s: ' // path
         if (trim(sim%ref%name) /= 'none' .and. sim%time > 0.0_wp) then
             error = simulation_analytic_error(sim, env)
-            write(line, '(f8.4)') 100.0_wp * error
-            message = message // ' (L2 error vs analytic ' // trim(line) // ' %)'
+            message = message // ' (L2 error vs analytic ' // &
+                fixed_text(100.0_wp * error, 8, 4) // ' %)'
         end if
         call log_info(message)
     end procedure simulation_write_snapshot

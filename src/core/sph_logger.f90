@@ -6,7 +6,7 @@ module sph_logger
     private
     public :: VERBOSITY_QUIET, VERBOSITY_INFO, VERBOSITY_DEBUG
     public :: logger_init, log_info, log_debug, log_warn, log_warn_counted, log_warning_summary
-    public :: logger_is_root, int_text, sci_text
+    public :: logger_is_root, int_text, sci_text, fixed_text
 
     integer, parameter :: VERBOSITY_QUIET = 0, VERBOSITY_INFO = 1, VERBOSITY_DEBUG = 2
     integer, parameter :: max_keys = 64
@@ -104,4 +104,26 @@ contains
         write(buffer, '(es10.2)') value
         text = trim(adjustl(buffer))
     end function sci_text
+
+    !> A real in the fixed format f<width>.<decimals> (padded as that format pads it, so
+    !> that columns stay aligned) when it fits, else in scientific notation (es12.5; also
+    !> for a non-finite value): an error of 1000 % printed as asterisks before.
+    function fixed_text(value, width, decimals) result(text)
+        real(real64), intent(in) :: value
+        integer, intent(in) :: width, decimals
+        character(len=:), allocatable :: text
+        character(len=32) :: buffer, form
+        real(real64) :: limit
+        ! the largest magnitude that fits once rounded (a minus sign takes a digit's place);
+        ! the comparison is false for NaN
+        limit = 10.0_real64**(width - decimals - 1) - 0.5_real64 * 10.0_real64**(-decimals)
+        if (value < 0.0_real64) limit = limit / 10.0_real64
+        if (abs(value) < limit) then
+            write(form, '(a, i0, a, i0, a)') '(f', width, '.', decimals, ')'
+        else
+            form = '(es12.5)'
+        end if
+        write(buffer, form) value
+        text = trim(buffer)
+    end function fixed_text
 end module sph_logger
