@@ -11,7 +11,7 @@ module sph_simulation
     use sph_schedule, only: schedule_t, schedule_init, schedule_dt_cap, schedule_after_step, &
         schedule_final_report, log_progress_header
     use sph_earlier_output, only: set_aside_earlier_output
-    use sph_logger, only: log_warn
+    use sph_logger, only: log_warn, int_text
     use sph_step_timers, only: timers_start, timers_stop, timers_enter, timers_leave, &
         TIMER_OTHER, TIMER_OUTPUT
     implicit none
@@ -36,6 +36,12 @@ contains
             if (sim%time >= cfg%run%t_end * (1.0_wp - 1.0e-12_wp)) &
                 call fatal_collective('restart', &
                 'the checkpoint is already at the end time; raise &run t_end to continue the run')
+            ! (max_steps counts from the run's start: a restart at or past it took a step all
+            ! the same, its remaining time negative)
+            if (sim%step >= cfg%run%max_steps) call fatal_collective('restart', &
+                'the checkpoint is at step ' // int_text(sim%step) // ', at or past &run ' // &
+                'max_steps = ' // int_text(int(cfg%run%max_steps, i8)) // ' (steps count ' // &
+                'from the start of the run); raise max_steps to continue the run')
             call keep_earlier_output(env, cfg, sim%step)
         else
             call simulation_setup(sim, env, cfg)

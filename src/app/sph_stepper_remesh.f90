@@ -454,6 +454,12 @@ contains
                 "' holds a multi-resolution state already (its stored input has &region " // &
                 'groups): --regions refines a uniform one; nothing written')
         end if
+        ! OUT is continued with this input: one that ends at or before IN's state could not
+        ! (the restart refused it only after OUT was written)
+        if (time >= cfg%run%t_end * (1.0_wp - 1.0e-12_wp) .or. step >= cfg%run%max_steps) &
+            call fatal_collective('remesh', "--regions: IN '" // in_path // "' is at or " // &
+            "past the end of '" // regions_path // "' (&run t_end or max_steps): no run " // &
+            'could continue OUT with it; raise them; nothing written')
         call log_info('remesh: ' // in_path // ' -> ' // out_path // ', the &region groups ' // &
             'of ' // regions_path // ' refined')
         ! the restart's path: the regions refined (refine_if_uniform), the levels started

@@ -138,6 +138,15 @@ contains
             sim%rates_stale = trim(stored%numerics%integrator) /= 'verlet'
             mismatch = geometry_mismatch(stored, cfg)
             if (len(mismatch) > 0) call fatal_collective(what, mismatch)
+            ! the particles' densities and masses are those of the stored rest density: with
+            ! another, the equation of state turned them into pressures that stopped the run
+            ! at its first step, as a density outside &health density_band
+            if (abs(stored%fluid%rho0 - cfg%fluid%rho0) > 1.0e-12_wp * stored%fluid%rho0) then
+                write(line, '(a, es12.5, a, es12.5, a)') "the checkpoint's fluid has &fluid " // &
+                    'rho0 = ', stored%fluid%rho0, ' kg/m^3 but the input ', cfg%fluid%rho0, &
+                    ' kg/m^3; continue with the checkpoint''s rest density'
+                call fatal_collective(what, trim(line))
+            end if
         end if
         ! a remeshed (refined or coarsened) checkpoint holds particles of another spacing:
         ! the input must say so (kernel, masses of new walls, time step follow from dx)

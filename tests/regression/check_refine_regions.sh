@@ -8,7 +8,8 @@
 # state's rates, none for the new particles: velocities 0.2 % of the peak off.) Refused with
 # a message and nothing written: --regions with another mode, an input without &region
 # groups, an IN that is multi-resolution already, an input of another spacing (named as the
-# offline command's error, not a restart's), an OUT that exists. A band along the lower plate
+# offline command's error, not a restart's), an input that ends before IN's time (no run
+# could continue OUT with it), an OUT that exists. A band along the lower plate
 # and a nested level-2 band, refined from the uniform checkpoint, hold the particles per level
 # and the real mass of the same inputs started afresh (before: the band lost the fine row
 # next to the plate, 2.5 % of the mass; the nested band came out empty, 20 %).
@@ -81,6 +82,9 @@ expect_refusal no_regions "has no &region groups: nothing to refine" x.h5 \
     --remesh refine "$checkpoint" x.h5 --regions uniform.nml
 expect_refusal multires_in "holds a multi-resolution state already" x.h5 \
     --remesh refine refined.h5 x.h5 --regions b.nml
+sed -e 's/^ *t_end = .*/    t_end = 0.005/' b.nml > ended.nml
+expect_refusal ended "error in remesh: --regions: IN '.*' is at or past the end of 'ended.nml'" \
+    x.h5 --remesh refine "$checkpoint" x.h5 --regions ended.nml
 sed -e 's/^ *dx = .*/    dx = 2.5e-5/' b.nml > fine.nml
 expect_refusal other_spacing "error in remesh --regions: the checkpoint's particles have spacing" \
     x.h5 --remesh refine "$checkpoint" x.h5 --regions fine.nml

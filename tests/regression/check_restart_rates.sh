@@ -36,4 +36,20 @@ run "$np" stronger.nml --restart "$checkpoint" > stronger.log 2>&1 || \
     fail "the run with a stronger force failed:" stronger.log
 grep -q "restart: the input differs from the checkpoint's in what the rates depend on" \
     stronger.log || fail "a changed body force kept the checkpoint's rates:" stronger.log
+# what the checkpoint's state cannot take is refused, naming the key: another rest density
+# (before: the run stopped at its first step on &health density_band, with a failure
+# snapshot) and a max_steps the checkpoint is past (before: it took a step all the same)
+sed -e 's/^ *rho0 = .*/    rho0 = 500.0/' extended.nml > lighter.nml
+if run "$np" lighter.nml --restart "$checkpoint" > lighter.log 2>&1; then
+    fail "a restart with another rho0 ran:" lighter.log
+fi
+grep -q "error in restart: the checkpoint's fluid has &fluid rho0 =  1.00000E+03" lighter.log || \
+    fail "no message naming rho0:" lighter.log
+sed -e 's/^&run/\&run\n    max_steps = 5/' extended.nml > fewer.nml
+if run "$np" fewer.nml --restart "$checkpoint" > fewer.log 2>&1; then
+    fail "a restart past max_steps ran:" fewer.log
+fi
+grep -q "error in restart: the checkpoint is at step [0-9]*, at or past &run max_steps = 5" \
+    fewer.log || fail "no message naming max_steps:" fewer.log
 echo "a Verlet checkpoint's rates: kept when only the run is extended, evaluated anew otherwise"
+echo "another rho0 and a max_steps already passed refused"
