@@ -46,7 +46,8 @@ module sph_transition_driver
     use sph_kernel, only: kernel_t
     use sph_transition, only: fine_virtual_positions, coarse_virtual_positions, &
         fine_virtual_split, coarse_virtual_parity, &
-        interpolate_fields, virtual_id, image_source_id, bisect
+        interpolate_fields, virtual_id, image_source_id, bisect, fit_to_bodies, &
+        fill_next_to_bodies
     implicit none
     private
     public :: level_stats_t, create_level_particles, update_transition_zones, level_totals
@@ -57,6 +58,9 @@ module sph_transition_driver
     !> enough for the refinement's cells (<= 1.8 dx), the coarsening's rows and tagging chains
     !> (<= 4.3 fine spacings) and the interpolation's reach (2 sqrt(dim) h).
     real(wp), parameter :: SOURCE_MARGIN = 4.0_wp
+    !> refining a uniform state next to a body: the fill takes a lattice site where no new
+    !> point lies within this many fine spacings (sph_transition fill_next_to_bodies)
+    real(wp), parameter :: FILL_GAP = 0.6_wp
 
     !> Lineage (split rule). Each particle carries, in the run-time field LINEAGE_FIELD,
     !> (1) the identity its fine children descend from, 0 for its own id, and (2) the identity
@@ -878,7 +882,11 @@ contains
         real(wp), allocatable :: ym(:, :)
         integer(i8), allocatable :: ids(:), ida(:), vid(:)
         real(wp) :: box(3), y(3), reach
-        logical, allocatable :: drop(:), wanted(:)
+        logical, allocatable :: drop(:), wanted(:), fit(:)
+        real(wp), allocatable :: x_fill(:, :)
+        integer, allocatable :: parity_fill(:)
+        integer(i8), allocatable :: site_fill(:)
+        integer :: n_fill
         logical :: is_real
         character(len=256) :: msg
         type(config_t) :: level_cfg
@@ -943,6 +951,18 @@ contains
                 xn, vid, parity, st, msg)
             if (global_max(env, int(st, i8)) /= 0) call fatal_collective('restart', &
                 'refining a uniform checkpoint: ' // trim(msg))
+            ! next to a body the shifted rows are fitted to its surface (a fresh lattice's rule)
+            allocate(fit(max(n_new, 1)))
+            call fit_to_bodies(dim, n_new, xn, cfg%domain%box_lo, level_phys(lv)%dx, solids, fit)
+            call fill_next_to_bodies(dim, n_new, xn, fit, cfg%domain%box_lo, &
+                cfg%domain%box_hi, level_phys(lv)%dx, solids, FILL_GAP, n_fill, x_fill, &
+                parity_fill, site_fill)
+            keep = pack([(j, j = 1, n_new)], fit(1:n_new))
+            xn = reshape([xn(:, keep), x_fill], [3, size(keep) + n_fill])
+            vid = [vid(keep), (virtual_id(lv, -site_fill(j), 0_i8), j = 1, n_fill)]
+            parity = [parity(keep), parity_fill]
+            n_new = size(keep) + n_fill
+            deallocate(fit)
             ! the fields from the sources alone (the linear correction of the interpolation
             ! extends the profile to the row next to a wall)
             call with_periodic_images(dim, n_all, xs, .true., box, reach, xa, orig, ntot)

@@ -65,7 +65,8 @@ module sph_transition
     use sph_refine, only: refine_positions
     use sph_coarsen, only: coarsen_select, id_hash
     use sph_global_ids, only: id_order   ! the stable id sort (no communication)
-    use sph_cell_list, only: neighbour_list_t, build_cross_list
+    use sph_cell_list, only: neighbour_list_t, build_cross_list, build_neighbour_list
+    use sph_solids, only: solids_t, solid_distance, solid_normal, SOLID_PLANE
     use sph_interpolation_kernels, only: INTERP_M4, interp_weight, interp_support, m4_bspline
     implicit none
     private
@@ -73,7 +74,7 @@ module sph_transition
     real(wp), parameter :: MAX_AMPLIFICATION = 2.0_wp
     public :: fine_virtual_positions, coarse_virtual_positions, interpolate_fields
     public :: fine_virtual_split, coarse_virtual_parity
-    public :: virtual_id, image_source_id, bisect
+    public :: virtual_id, image_source_id, bisect, fit_to_bodies, fill_next_to_bodies
 
 contains
 
@@ -149,6 +150,196 @@ contains
             vid(k) = virtual_id(level, key(1, k), key(2, k))
         end do
     end subroutine fine_virtual_positions
+
+    !> New fine positions x(:, 1:n) (relative to origin, spacing dx_new) fitted to the bodies
+    !> (solids that are not planes) as a fresh lattice is (sph_initial): a point closer than
+    !> dx_new / 2 to a body's surface is pushed out along its normal to dx_new / 2, one
+    !> deeper than dx_new / 2 inside is dropped (keep = .false.). The refinement of a uniform
+    !> state constructs its points from the sources and their mirrors and shifts them by a
+    !> quarter of the old spacing (fine_virtual_positions): next to a curved surface that
+    !> shift carries the surface row into the body on one side, and dropping what lay inside
+    !> left a band of L/50 around Morris' cylinder 41 particles short of a fresh start's 496,
+    !> its viscous drag half of that run's. A pushed point closer than MIN_PUSHED_GAP dx_new
+    !> to a kept one is dropped too (the points unmoved first, then the pushed ones in their
+    !> order: the result depends on positions and order only, not on ranks).
+    subroutine fit_to_bodies(dim, n, x, origin, dx_new, solids, keep)
+        integer, intent(in) :: dim, n
+        real(wp), intent(inout) :: x(:, :)
+        real(wp), intent(in) :: origin(3), dx_new
+        type(solids_t), intent(in) :: solids
+        logical, intent(out) :: keep(:)
+        real(wp), parameter :: MIN_PUSHED_GAP = 0.4_wp
+        type(neighbour_list_t) :: nl
+        logical, allocatable :: pushed(:)
+        real(wp) :: d, best, normal(3), y(3)
+        integer :: k, s, nearest, t, j
+        keep(1:n) = .true.
+        if (.not. allocated(solids%list)) return
+        if (all(solids%list(:)%shape == SOLID_PLANE)) return
+        allocate(pushed(n))
+        pushed = .false.
+        do k = 1, n
+            y = x(:, k) + origin
+            y(dim + 1:) = 0.0_wp
+            call nearest_body(solids, y, best, nearest)
+            if (best >= 0.5_wp * dx_new) cycle
+            if (best < -0.5_wp * dx_new) then
+                keep(k) = .false.
+                cycle
+            end if
+            normal = solid_normal(solids%list(nearest), y)
+            normal(dim + 1:) = 0.0_wp
+            x(:, k) = x(:, k) + (0.5_wp * dx_new - best) * normal
+            pushed(k) = .true.
+        end do
+        if (.not. any(pushed)) return
+        call build_neighbour_list(x, n, n, dim, MIN_PUSHED_GAP * dx_new, nl, &
+            cell_size=0.5_wp * dx_new)
+        do k = 1, n
+            if (.not. pushed(k) .or. .not. keep(k)) cycle
+            do t = nl%start(k), nl%start(k + 1) - 1
+                j = nl%index(t)
+                if (j == k .or. .not. keep(j)) cycle
+                if (pushed(j) .and. j > k) cycle
+                keep(k) = .false.
+                exit
+            end do
+        end do
+    end subroutine fit_to_bodies
+
+    !> Sites of the lattice of spacing dx_new (box_lo + (i - 1/2) dx_new, as sph_initial lays
+    !> it) outside every body and within FILL_BAND dx_new of one, pushed out to dx_new / 2 as
+    !> a fresh lattice's are, taken in site order where no point of x(:, keep) and no site
+    !> taken before lies within fill_gap dx_new. The construction leaves irregular cells next
+    !> to a curved surface without their centres (and the mirrors across it do not close
+    !> them): refining a uniform state, the band around Morris' cylinder (L/25 -> L/50) had
+    !> 23 particles in its first row where a fresh start has 66. Only sites within the box of
+    !> the points x (padded by FILL_BAND dx_new) are looked at. Returns the sites (relative to
+    !> box_lo), their lattice parities (odd index along an axis: its bit set) and linear
+    !> indices (1 + (i - 1) + n1 ((j - 1) + n2 (k - 1)), for ids).
+    subroutine fill_next_to_bodies(dim, n, x, keep, box_lo, box_hi, dx_new, solids, fill_gap, &
+            n_fill, x_fill, parity_fill, site_fill)
+        integer, intent(in) :: dim, n
+        real(wp), intent(in) :: x(:, :), box_lo(3), box_hi(3), dx_new, fill_gap
+        logical, intent(in) :: keep(:)
+        type(solids_t), intent(in) :: solids
+        integer, intent(out) :: n_fill
+        real(wp), allocatable, intent(out) :: x_fill(:, :)
+        integer, allocatable, intent(out) :: parity_fill(:)
+        integer(i8), allocatable, intent(out) :: site_fill(:)
+        real(wp), parameter :: FILL_BAND = 1.5_wp
+        real(wp), allocatable :: xc(:, :), all_points(:, :)
+        integer, allocatable :: idx_c(:, :)
+        integer :: n_sites(3), lo(3), hi(3), idx(3), a, i, j, k, s, nc, t, m
+        real(wp) :: y(3), d, best, normal(3), xmin(3), xmax(3)
+        type(neighbour_list_t) :: nl
+        logical, allocatable :: taken(:)
+        integer :: nearest
+        n_fill = 0
+        allocate(x_fill(3, 0), parity_fill(0), site_fill(0))
+        if (.not. allocated(solids%list)) return
+        if (all(solids%list(:)%shape == SOLID_PLANE)) return
+        if (.not. any(keep(1:n))) return
+        n_sites = 1
+        lo = 1
+        hi = 1
+        xmin = 0.0_wp
+        xmax = 0.0_wp
+        do a = 1, dim
+            n_sites(a) = nint((box_hi(a) - box_lo(a)) / dx_new)
+            xmin(a) = minval(x(a, 1:n), mask=keep(1:n)) - FILL_BAND * dx_new
+            xmax(a) = maxval(x(a, 1:n), mask=keep(1:n)) + FILL_BAND * dx_new
+            lo(a) = max(1, floor(xmin(a) / dx_new + 0.5_wp))
+            hi(a) = min(n_sites(a), ceiling(xmax(a) / dx_new + 0.5_wp))
+        end do
+        ! candidates: sites outside the bodies and within the band of one, pushed out
+        allocate(xc(3, 64), idx_c(3, 64))
+        nc = 0
+        do k = lo(3), hi(3)
+            do j = lo(2), hi(2)
+                do i = lo(1), hi(1)
+                    idx = [i, j, k]
+                    y = 0.0_wp
+                    y(1:dim) = (real(idx(1:dim), wp) - 0.5_wp) * dx_new
+                    call nearest_body(solids, y + box_lo, best, nearest)
+                    if (best <= 0.0_wp .or. best >= FILL_BAND * dx_new) cycle
+                    if (best < 0.5_wp * dx_new) then
+                        normal = solid_normal(solids%list(nearest), y + box_lo)
+                        normal(dim + 1:) = 0.0_wp
+                        y = y + (0.5_wp * dx_new - best) * normal
+                    end if
+                    if (nc == size(idx_c, 2)) then
+                        xc = reshape([xc, spread(0.0_wp, 1, 3 * nc)], [3, 2 * nc])
+                        idx_c = reshape([idx_c, spread(0, 1, 3 * nc)], [3, 2 * nc])
+                    end if
+                    nc = nc + 1
+                    xc(:, nc) = y
+                    idx_c(:, nc) = idx
+                end do
+            end do
+        end do
+        if (nc == 0) return
+        ! the points, then the candidates; a candidate is taken when no point and no candidate
+        ! taken before it lies within the gap
+        m = count(keep(1:n))
+        allocate(all_points(3, m + nc))
+        all_points(:, 1:m) = x(:, pack([(i, i = 1, n)], keep(1:n)))
+        all_points(dim + 1:, 1:m) = 0.0_wp
+        all_points(:, m + 1:) = xc(:, 1:nc)
+        call build_neighbour_list(all_points, m + nc, m + nc, dim, fill_gap * dx_new, nl, &
+            cell_size=0.5_wp * dx_new)
+        allocate(taken(nc))
+        taken = .false.
+        do i = 1, nc
+            taken(i) = .true.
+            do t = nl%start(m + i), nl%start(m + i + 1) - 1
+                j = nl%index(t)
+                if (j == m + i) cycle
+                if (j <= m) then
+                    taken(i) = .false.
+                else if (j < m + i) then
+                    if (taken(j - m)) taken(i) = .false.
+                end if
+                if (.not. taken(i)) exit
+            end do
+        end do
+        n_fill = count(taken)
+        x_fill = xc(:, pack([(i, i = 1, nc)], taken))
+        deallocate(parity_fill, site_fill)
+        allocate(parity_fill(n_fill), site_fill(n_fill))
+        j = 0
+        do i = 1, nc
+            if (.not. taken(i)) cycle
+            j = j + 1
+            parity_fill(j) = 0
+            do a = 1, dim
+                if (mod(idx_c(a, i), 2) == 1) parity_fill(j) = ibset(parity_fill(j), a - 1)
+            end do
+            site_fill(j) = 1 + (idx_c(1, i) - 1) + int(n_sites(1), i8) * ((idx_c(2, i) - 1) + &
+                int(n_sites(2), i8) * (idx_c(3, i) - 1))
+        end do
+    end subroutine fill_next_to_bodies
+
+    !> The body (a solid that is not a plane) nearest y and the signed distance to its
+    !> surface (huge and 0 when there is none).
+    pure subroutine nearest_body(solids, y, best, nearest)
+        type(solids_t), intent(in) :: solids
+        real(wp), intent(in) :: y(3)
+        real(wp), intent(out) :: best
+        integer, intent(out) :: nearest
+        real(wp) :: d
+        integer :: s
+        best = huge(1.0_wp)
+        nearest = 0
+        do s = 1, size(solids%list)
+            if (solids%list(s)%shape == SOLID_PLANE) cycle
+            d = solid_distance(solids%list(s), y)
+            if (d < best) then
+                best = d
+                nearest = s
+            end if
+        end do
+    end subroutine nearest_body
 
     !> Position of value in the ascending list s where it is there; otherwise the first
     !> position holding a larger value (size(s) when none does, 1 when s is empty).
