@@ -74,7 +74,7 @@ module sph_transition
     real(wp), parameter :: MAX_AMPLIFICATION = 2.0_wp
     public :: fine_virtual_positions, coarse_virtual_positions, interpolate_fields
     public :: fine_virtual_split, coarse_virtual_parity
-    public :: virtual_id, image_source_id, bisect, fit_to_bodies, fill_next_to_bodies
+    public :: virtual_id, image_source_id, bisect, fit_to_bodies, fill_next_to_bodies, nearest_body
 
 contains
 
