@@ -59,7 +59,7 @@ module sph_stepper
     public :: fluid_density_range, simulation_remesh, simulation_remesh_file
     public :: simulation_refine_regions_file
     public :: simulation_log_levels, simulation_neighbours_per_particle
-    public :: simulation_synchronised
+    public :: simulation_synchronised, next_multiple
 
     type :: simulation_t
         type(config_t) :: cfg
@@ -366,6 +366,14 @@ module sph_stepper
             character(len=:), allocatable :: text
         end function geometry_mismatch
 
+        !> What of the wall and body particles a checkpoint's stored input laid differs from
+        !> cfg's ('' if nothing; sph_stepper_checks): their layers (the kernel support over
+        !> dx), the wall model, the walls' and the bodies' velocities.
+        module function walls_mismatch(stored, cfg) result(text)
+            type(config_t), intent(in) :: stored, cfg
+            character(len=:), allocatable :: text
+        end function walls_mismatch
+
         !> Whether what the rates depend on (the &domain, &fluid, &numerics, &body,
         !> &refinement and &region groups of the resolved inputs) differs between a
         !> checkpoint's stored input and cfg (sph_stepper_checks): then a checkpoint's rates
@@ -406,6 +414,16 @@ module sph_stepper
 
         ! (in sph_stepper_shared, as the submodules call them: gfortran emits no symbol for a
         ! procedure of the module itself that it has inlined at every call there)
+
+        !> The first multiple of `period` after `time` (to 1e-12 relative: a time that
+        !> lands on a multiple is past it), in floating point: a period below the time's
+        !> resolution overflowed an integer count (every_time 1e-30 s trapped at a restart)
+        !> and, added step by step, never passed the time; such a period gives the time
+        !> itself (due at every step).
+        pure module function next_multiple(time, period) result(next)
+            real(wp), intent(in) :: time, period
+            real(wp) :: next
+        end function next_multiple
 
         !> How far ghosts reach beyond a rank's region (see migrate_and_rebuild).
         !> With several levels, ghosts must also cover what the transition zones' virtual

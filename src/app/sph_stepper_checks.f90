@@ -6,6 +6,8 @@ submodule (sph_stepper) sph_stepper_checks
     use sph_logger, only: log_warn, int_text, sci_text
     use sph_initial, only: lattice_sites_estimate
     use sph_memory, only: node_memory_bytes
+    use sph_physics, only: physics_from_config
+    use sph_walls, only: wall_layers
     implicit none
 
 contains
@@ -197,6 +199,40 @@ contains
             end do
         end function regions_mismatch
     end procedure geometry_mismatch
+
+    module procedure walls_mismatch
+        type(physics_t) :: before, after
+        character(len=:), allocatable :: errmsg
+        integer :: stat, k, dim
+        text = ''
+        dim = cfg%domain%dimension
+        if (trim(stored%numerics%wall_model) /= trim(cfg%numerics%wall_model)) then
+            text = "&numerics wall_model ('" // trim(stored%numerics%wall_model) // "' -> '" // &
+                trim(cfg%numerics%wall_model) // "')"
+            return
+        end if
+        call physics_from_config(stored, before, stat, errmsg)
+        if (stat == 0) call physics_from_config(cfg, after, stat, errmsg)
+        if (stat == 0) then
+            if (wall_layers(before) /= wall_layers(after)) then
+                text = 'the wall layers (' // int_text(int(wall_layers(before), i8)) // ' -> ' &
+                    // int_text(int(wall_layers(after), i8)) // ': &numerics kernel or h_factor)'
+                return
+            end if
+        end if
+        if (any(abs(stored%domain%wall_velocity(:, 1:2 * dim) - &
+            cfg%domain%wall_velocity(:, 1:2 * dim)) > 0.0_wp)) then
+            text = '&domain wall_velocity'
+            return
+        end if
+        do k = 1, min(size(stored%bodies), size(cfg%bodies))
+            if (any(abs(stored%bodies(k)%velocity - cfg%bodies(k)%velocity) > 0.0_wp)) then
+                text = '&body ' // int_text(int(k, i8)) // " ('" // trim(cfg%bodies(k)%name) // &
+                    "') velocity"
+                return
+            end if
+        end do
+    end procedure walls_mismatch
 
     module procedure rates_inputs_differ
         character(len=*), parameter :: groups(6) = [character(len=10) :: 'domain', 'fluid', &

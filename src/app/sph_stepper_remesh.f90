@@ -41,9 +41,7 @@ contains
             due = mod(sim%step, int(sim%cfg%remesh%every_steps, i8)) == 0
         if (sim%time >= sim%next_remesh_time * (1.0_wp - 1.0e-12_wp)) then
             due = .true.
-            do while (sim%next_remesh_time <= sim%time * (1.0_wp + 1.0e-12_wp))
-                sim%next_remesh_time = sim%next_remesh_time + sim%cfg%remesh%every_time
-            end do
+            sim%next_remesh_time = next_multiple(sim%time, sim%cfg%remesh%every_time)
         end if
         if (.not. due .and. sim%cfg%remesh%disorder_threshold > 0.0_wp) then
             if (mod(sim%step, int(sim%cfg%remesh%disorder_check_steps, i8)) == 0) then

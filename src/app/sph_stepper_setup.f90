@@ -5,6 +5,7 @@
 submodule (sph_stepper) sph_stepper_setup
     use sph_domain, only: domain_owner
     use sph_logger, only: log_warn
+    use sph_particles, only: KIND_WALL, particles_init, particles_append, particles_free
     implicit none
 
 contains
@@ -85,10 +86,11 @@ contains
         real(wp) :: stored_dx
         real(wp), allocatable :: balance(:)
         integer :: n
-        character(len=:), allocatable :: what
+        character(len=:), allocatable :: what, walls_changed
 
         what = 'restart'
         if (present(label)) what = label
+        walls_changed = ''
         call setup_common(sim, env, cfg)
         inquire(file=trim(from) // '/.', exist=is_directory)
         if (is_directory) then
@@ -142,10 +144,18 @@ contains
             ! another, the equation of state turned them into pressures that stopped the run
             ! at its first step, as a density outside &health density_band
             if (abs(stored%fluid%rho0 - cfg%fluid%rho0) > 1.0e-12_wp * stored%fluid%rho0) then
-                write(line, '(a, es12.5, a, es12.5, a)') "the checkpoint's fluid has &fluid " // &
+                ! (all the digits: the refusal is to 1e-12, and 1000.0000001 printed as 1000)
+                write(line, '(a, es24.16, a, es24.16, a)') "the checkpoint's fluid has &fluid " // &
                     'rho0 = ', stored%fluid%rho0, ' kg/m^3 but the input ', cfg%fluid%rho0, &
                     ' kg/m^3; continue with the checkpoint''s rest density'
                 call fatal_collective(what, trim(line))
+            end if
+            walls_changed = walls_mismatch(stored, cfg)
+            if (len(walls_changed) > 0 .and. allocated(stored%regions)) then
+                if (size(stored%regions) > 0) call fatal_collective(what, 'the input ' // &
+                    'changes ' // walls_changed // ", for which the checkpoint's wall " // &
+                    'particles were laid; a multi-resolution state continues with them ' // &
+                    '(its input is stored in it)')
             end if
         end if
         ! a remeshed (refined or coarsened) checkpoint holds particles of another spacing:
@@ -166,8 +176,8 @@ contains
                     // 'the rates depend on; its rates are evaluated anew')
             end if
         end if
-        if (cfg%remesh%every_time > 0.0_wp) sim%next_remesh_time = cfg%remesh%every_time * &
-            (floor(sim%time / cfg%remesh%every_time * (1.0_wp + 1.0e-12_wp)) + 1)
+        if (cfg%remesh%every_time > 0.0_wp) sim%next_remesh_time = &
+            next_multiple(sim%time, cfg%remesh%every_time)
         sim%snapshot_index = index_text
         if (.not. same_layout) then
             call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
@@ -180,6 +190,7 @@ contains
                 'match its decomposition; the particles are handed to their owners')
             call migrate(sim, env)
         end if
+        if (len(walls_changed) > 0) call lay_walls_again(sim, env, what, walls_changed)
         call refine_if_uniform(sim, env, what)
         call halo_setup(sim%halo, sim%domain, halo_reach(sim))
         call simulation_prepare_neighbours(sim, env)
@@ -193,6 +204,38 @@ contains
             'from the one stored in the checkpoint; the new input is used')
         call log_setup(sim, env)
     end procedure simulation_restart
+
+    !> The wall and body particles laid again for the input (a uniform state): the
+    !> checkpoint's were laid for its own kernel support, wall model and wall velocities,
+    !> and a restart that changed them ran with the old ones (h_factor 4: 3 layers kept where
+    !> 8 were needed, the density down to 940 kg/m^3 in one step; a faster lid or a moving
+    !> body not moving, while the log said the new input was used). Ids after every other
+    !> particle's, each made by the rank whose region holds it (as a remesh lays them).
+    subroutine lay_walls_again(sim, env, what, changed)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        character(len=*), intent(in) :: what, changed
+        type(particles_t) :: walls
+        integer, allocatable :: keep(:)
+        integer(i8) :: base
+        integer :: k, c
+        keep = pack([(k, k = 1, sim%p%n_owned)], sim%p%kind(1:sim%p%n_owned) /= KIND_WALL)
+        call particles_gather(sim%p, keep)
+        sim%p%n_owned = size(keep)
+        sim%p%n_total = sim%p%n_owned
+        base = global_max_id(env, sim%p%id, sim%p%n_owned)
+        call particles_init(walls, 1024, sim%cfg%domain%dimension)
+        call create_lattice_particles(sim%cfg, sim%phys, sim%solids, sim%domain, walls, &
+            walls_only=.true.)
+        keep = pack([(k, k = 1, walls%n_owned)], walls%kind(1:walls%n_owned) /= KIND_FLUID)
+        c = sim%p%n_owned
+        call particles_append(sim%p, walls, keep)
+        sim%p%id(c + 1:c + size(keep)) = base + sim%p%id(c + 1:c + size(keep))
+        call particles_free(walls)
+        sim%rates_stale = .true.
+        call log_info(what // ': the input changes ' // changed // '; the wall and body ' // &
+            'particles were laid again for it')
+    end subroutine lay_walls_again
 
     !> The number of particles (all ranks) that lie outside their rank's region (collective).
     !> A checkpoint is written after the particles were handed to their owners: none.

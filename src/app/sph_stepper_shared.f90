@@ -340,6 +340,11 @@ contains
             sim%cfg%numerics%cfl, sim%cfg%numerics%viscous_safety, sim%cfg%numerics%force_safety)
     end procedure stable_timestep
 
+    module procedure next_multiple
+        next = period * (aint(time / period * (1.0_wp + 1.0e-12_wp)) + 1.0_wp)
+        if (.not. (next > time .and. next <= huge(1.0_wp))) next = time
+    end procedure next_multiple
+
     module procedure halo_reach
         reach = sim%phys%kernel%support + sim%skin + sim%list_skin
         if (sim%zones%n_levels > 1) reach = max(reach, 2.0_wp * &
