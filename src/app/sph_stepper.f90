@@ -415,6 +415,15 @@ module sph_stepper
         ! (in sph_stepper_shared, as the submodules call them: gfortran emits no symbol for a
         ! procedure of the module itself that it has inlined at every call there)
 
+        !> The owned particles other than fluid replaced by the wall and body particles of
+        !> the lattice at the configuration's spacing (sph_initial, walls_only), their ids
+        !> after every other particle's (lattice ids are unique and rank independent), each
+        !> made by the rank whose region of sim%domain holds it (sph_stepper_shared).
+        module subroutine lay_lattice_walls(sim, env)
+            type(simulation_t), intent(inout) :: sim
+            type(mpi_env_t), intent(in) :: env
+        end subroutine lay_lattice_walls
+
         !> The first multiple of `period` after `time` (to 1e-12 relative: a time that
         !> lands on a multiple is past it), in floating point: a period below the time's
         !> resolution overflowed an integer count (every_time 1e-30 s trapped at a restart)

@@ -5,7 +5,6 @@
 !> documentation are in sph_stepper.
 submodule (sph_stepper) sph_stepper_remesh
     use sph_logger, only: log_warn_counted, log_warn, sci_text
-    use sph_particles, only: particles_init, particles_free, particles_append
     use sph_physics, only: physics_from_config
     use sph_walls, only: solids_from_config
     use sph_disorder_measure, only: nearest_distance_sums, disorder_from_sums
@@ -108,10 +107,6 @@ contains
         logical :: periodic(3)
         character(len=:), allocatable :: errmsg
         integer, allocatable :: order(:)
-        type(particles_t) :: walls
-        integer(i8) :: base
-        integer :: k, c
-        integer, allocatable :: keep(:)
         real(wp) :: t_rebuild
 
         ! positions wrapped into the box and owned where they lie (the Verlet list may have
@@ -137,25 +132,10 @@ contains
             sim%cfg%domain%box_hi, periodic, h_new, sim%p, report, stat, errmsg, sim%solids)
         if (stat /= 0) call fatal_collective('remesh', errmsg)
         t_rebuild = MPI_Wtime()
-        if (regenerate) then
-            ! the fluid first (rank 0 holds it all), then the walls of the lattice at dx_new,
-            ! their ids after every fluid id (lattice ids are unique and rank independent),
-            ! each made by the rank whose region (the partition from before the remesh) holds
-            ! it; the partition below and the migration hand them to their owners
-            keep = pack([(k, k = 1, sim%p%n_owned)], sim%p%kind(1:sim%p%n_owned) == KIND_FLUID)
-            call particles_gather(sim%p, keep)
-            sim%p%n_owned = size(keep)
-            sim%p%n_total = sim%p%n_owned
-            base = global_max_id(env, sim%p%id, sim%p%n_owned)
-            call particles_init(walls, 1024, sim%cfg%domain%dimension)
-            call create_lattice_particles(sim%cfg, sim%phys, sim%solids, sim%domain, walls, &
-                walls_only=.true.)
-            keep = pack([(k, k = 1, walls%n_owned)], walls%kind(1:walls%n_owned) /= KIND_FLUID)
-            c = sim%p%n_owned
-            call particles_append(sim%p, walls, keep)
-            sim%p%id(c + 1:c + size(keep)) = base + sim%p%id(c + 1:c + size(keep))
-            call particles_free(walls)
-        end if
+        ! the fluid first (rank 0 holds it all), then the walls of the lattice at dx_new, each
+        ! made by the rank whose region (the partition from before the remesh) holds it; the
+        ! partition below and the migration hand them to their owners
+        if (regenerate) call lay_lattice_walls(sim, env)
         call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
         call halo_setup(sim%halo, sim%domain, sim%phys%kernel%support + sim%skin)
         call migrate(sim, env)

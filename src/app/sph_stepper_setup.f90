@@ -5,7 +5,6 @@
 submodule (sph_stepper) sph_stepper_setup
     use sph_domain, only: domain_owner
     use sph_logger, only: log_warn
-    use sph_particles, only: KIND_WALL, particles_init, particles_append, particles_free
     implicit none
 
 contains
@@ -215,23 +214,7 @@ contains
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
         character(len=*), intent(in) :: what, changed
-        type(particles_t) :: walls
-        integer, allocatable :: keep(:)
-        integer(i8) :: base
-        integer :: k, c
-        keep = pack([(k, k = 1, sim%p%n_owned)], sim%p%kind(1:sim%p%n_owned) /= KIND_WALL)
-        call particles_gather(sim%p, keep)
-        sim%p%n_owned = size(keep)
-        sim%p%n_total = sim%p%n_owned
-        base = global_max_id(env, sim%p%id, sim%p%n_owned)
-        call particles_init(walls, 1024, sim%cfg%domain%dimension)
-        call create_lattice_particles(sim%cfg, sim%phys, sim%solids, sim%domain, walls, &
-            walls_only=.true.)
-        keep = pack([(k, k = 1, walls%n_owned)], walls%kind(1:walls%n_owned) /= KIND_FLUID)
-        c = sim%p%n_owned
-        call particles_append(sim%p, walls, keep)
-        sim%p%id(c + 1:c + size(keep)) = base + sim%p%id(c + 1:c + size(keep))
-        call particles_free(walls)
+        call lay_lattice_walls(sim, env)
         sim%rates_stale = .true.
         call log_info(what // ': the input changes ' // changed // '; the wall and body ' // &
             'particles were laid again for it')

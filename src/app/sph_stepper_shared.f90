@@ -9,7 +9,8 @@
 submodule (sph_stepper) sph_stepper_shared
     use sph_config, only: config_to_text
     use sph_memory, only: node_memory_bytes
-    use sph_particles, only: particles_init, particles_enable, HALO_DENSITY, HALO_STRAIN
+    use sph_particles, only: particles_init, particles_enable, HALO_DENSITY, HALO_STRAIN, &
+        particles_append, particles_free
     use sph_physics, only: physics_from_config, VISCOSITY_STRAIN_RATE, WALLS_MORRIS, &
         WALL_PRESSURE_EXTRAPOLATED, stiffest_viscosity
     use sph_walls, only: solids_from_config
@@ -339,6 +340,26 @@ contains
         lim = timestep_limits(h, sim%phys%c, maxima(1), stiffest_viscosity(sim%phys), maxima(2), &
             sim%cfg%numerics%cfl, sim%cfg%numerics%viscous_safety, sim%cfg%numerics%force_safety)
     end procedure stable_timestep
+
+    module procedure lay_lattice_walls
+        type(particles_t) :: walls
+        integer, allocatable :: keep(:)
+        integer(i8) :: base
+        integer :: k, c
+        keep = pack([(k, k = 1, sim%p%n_owned)], sim%p%kind(1:sim%p%n_owned) == KIND_FLUID)
+        call particles_gather(sim%p, keep)
+        sim%p%n_owned = size(keep)
+        sim%p%n_total = sim%p%n_owned
+        base = global_max_id(env, sim%p%id, sim%p%n_owned)
+        call particles_init(walls, 1024, sim%cfg%domain%dimension)
+        call create_lattice_particles(sim%cfg, sim%phys, sim%solids, sim%domain, walls, &
+            walls_only=.true.)
+        keep = pack([(k, k = 1, walls%n_owned)], walls%kind(1:walls%n_owned) /= KIND_FLUID)
+        c = sim%p%n_owned
+        call particles_append(sim%p, walls, keep)
+        sim%p%id(c + 1:c + size(keep)) = base + sim%p%id(c + 1:c + size(keep))
+        call particles_free(walls)
+    end procedure lay_lattice_walls
 
     module procedure next_multiple
         next = period * (aint(time / period * (1.0_wp + 1.0e-12_wp)) + 1.0_wp)
