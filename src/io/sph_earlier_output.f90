@@ -9,8 +9,9 @@
 !> so in the log:
 !>  - a fresh run: every file of its case (snapshots, checkpoints, failure snapshots, the
 !>    `.xdmf` and the forces file);
-!>  - a restart at step S: the snapshots, checkpoints and failure snapshots of steps after S
-!>    (the `.xdmf` and the forces file are continued, as before).
+!>  - a restart at step S: the snapshots, checkpoints and failure snapshots of steps after S,
+!>    the forces file when it has rows after S (the restart continues it from its rows up
+!>    to S) and a copy of the `.xdmf` (the restart writes its own from the checkpoint).
 !> A run continued from the newest checkpoint of a run that stopped there (a job chain) has
 !> nothing to set aside. Files of other cases and `.tmp` leftovers are not touched.
 module sph_earlier_output
@@ -121,6 +122,10 @@ contains
                 end if
                 moved = moved + 1
             end do
+            ! a restart continues the forces file and the index: the earlier continuation's
+            ! rows after its step go with its files (the forces file kept them, and its times
+            ! ran backwards), and the index of those files is kept beside them
+            if (stat == 0 .and. after_step >= 0) call split_continued_files()
             ! (to the other ranks as lines: the counts, the folder, the message)
             write(number, '(i0, 1x, i0)') stat, moved
             result_text = trim(number) // new_line('a') // folder // new_line('a') // errmsg
@@ -134,6 +139,60 @@ contains
         errmsg = result_text(n + 1:)
 
     contains
+
+        !> Rank 0, a restart: when `<case>_forces.csv` has rows of steps after after_step, it
+        !> goes whole into the folder and its rows up to after_step (and the header) are
+        !> written back in its place; when files were set aside, a copy of `<case>.xdmf` goes
+        !> with them.
+        subroutine split_continued_files()
+            character(len=:), allocatable :: text, kept, line, path
+            integer :: start, stop_at, comma, second, read_stat
+            integer(i8) :: row_step
+            logical :: later
+            path = directory // '/' // case_name // '_forces.csv'
+            call read_whole(path, text, read_stat)
+            if (read_stat == 0) then
+                kept = ''
+                later = .false.
+                start = 1
+                do while (start <= len(text))
+                    stop_at = index(text(start:), new_line('a'))
+                    if (stop_at == 0) stop_at = len(text) - start + 2
+                    line = text(start:start + stop_at - 2)
+                    start = start + stop_at
+                    ! (a row: time, step, ...; the header's second field is not a number)
+                    comma = index(line, ',')
+                    second = index(line(comma + 1:), ',')
+                    row_step = -1
+                    if (comma > 0 .and. second > 1) then
+                        read(line(comma + 1:comma + second - 1), *, iostat=read_stat) row_step
+                        if (read_stat /= 0) row_step = -1
+                    end if
+                    if (row_step > after_step) then
+                        later = .true.
+                    else
+                        kept = kept // line // new_line('a')
+                    end if
+                end do
+                if (later) then
+                    if (moved == 0) call new_folder(folder, stat)
+                    if (stat == 0) call rename_file(path, folder // '/' // case_name // &
+                        '_forces.csv', stat)
+                    if (stat == 0) call write_whole(path, kept, stat)
+                    if (stat /= 0) then
+                        write(number, '(i0)') after_step
+                        errmsg = 'cannot set the rows after step ' // trim(number) // " of '" &
+                            // path // "' aside"
+                        return
+                    end if
+                    moved = moved + 1
+                end if
+            end if
+            if (moved == 0) return
+            call read_whole(directory // '/' // case_name // '.xdmf', text, read_stat)
+            if (read_stat == 0) call write_whole(folder // '/' // case_name // '.xdmf', text, &
+                read_stat)
+        end subroutine split_continued_files
 
         !> The first `<directory>/<case>_earlier_<N>` that does not exist, made.
         subroutine new_folder(path, st)
@@ -154,4 +213,42 @@ contains
             end do
         end subroutine new_folder
     end subroutine set_aside_earlier_output
+
+    !> The whole of a text file (rank 0's reads); st /= 0 when it cannot be read.
+    subroutine read_whole(path, text, st)
+        character(len=*), intent(in) :: path
+        character(len=:), allocatable, intent(out) :: text
+        integer, intent(out) :: st
+        integer :: unit
+        integer(i8) :: size_bytes
+        open(newunit=unit, file=path, access='stream', form='unformatted', status='old', &
+            action='read', iostat=st)
+        if (st /= 0) then
+            text = ''
+            return
+        end if
+        inquire(unit=unit, size=size_bytes)
+        if (size_bytes < 0) then
+            st = 1
+            text = ''
+        else
+            allocate(character(len=size_bytes) :: text)
+            if (size_bytes > 0) read(unit, iostat=st) text
+        end if
+        close(unit)
+    end subroutine read_whole
+
+    !> A text file written whole under a temporary name, then renamed (a file with its final
+    !> name is complete, as every output file).
+    subroutine write_whole(path, text, st)
+        character(len=*), intent(in) :: path, text
+        integer, intent(out) :: st
+        integer :: unit
+        open(newunit=unit, file=path // '.tmp', access='stream', form='unformatted', &
+            status='replace', action='write', iostat=st)
+        if (st /= 0) return
+        write(unit, iostat=st) text
+        close(unit)
+        if (st == 0) call rename_file(path // '.tmp', path, st)
+    end subroutine write_whole
 end module sph_earlier_output

@@ -4,8 +4,9 @@
 # output_dir: the first run's files are moved, byte for byte, into output/<case>_earlier_1,
 # whose .xdmf still opens them (before: every snapshot and checkpoint was replaced without a
 # word). A restart from the step-100 checkpoint moves the files of later steps into
-# <case>_earlier_2 and keeps the rest; a restart from the newest checkpoint (a job chain) moves
-# nothing.
+# <case>_earlier_2 with the forces file whole and a copy of the index, continues the forces
+# file from its rows up to step 100 and keeps the rest; a restart from the newest checkpoint
+# (a job chain) moves nothing.
 # usage: check_earlier_output.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM INPUT.nml WORKDIR PYTHON
 #        XDMF_CHECKER
 set -u
@@ -34,16 +35,28 @@ done
 "$python" "$checker" "output/${case}_earlier_1/$case.xdmf" > xdmf.log 2>&1 || \
     fail "the moved .xdmf does not open the moved snapshots:" xdmf.log
 
+cp "output/${case}_forces.csv" forces_before_restart.csv
+cp "output/$case.xdmf" xdmf_before_restart.xdmf
 run case.nml --restart "output/${case}_checkpoint_000100.h5" > restart.log 2>&1 || \
     fail "the restart at step 100 failed:" restart.log
 later="of steps after the checkpoint (an earlier continuation)"
 grep -q "$later; moved to 'output/${case}_earlier_2'" restart.log || \
     fail "no warning for the later files:" restart.log
-for f in output/"${case}"_earlier_2/*; do
+for f in output/"${case}"_earlier_2/*.h5; do
     step=$(basename "$f" .h5 | sed 's/.*_0*\([0-9]\)/\1/')
     [ "$step" -gt 100 ] || fail "$(basename "$f") (step $step) was moved by the restart at 100"
 done
 [ -e "output/${case}_checkpoint_000100.h5" ] || fail "the restart moved its own checkpoint"
+# the forces file: whole beside the later files, continued from its rows up to step 100 (before,
+# the restart appended to all of it and the steps ran backwards); the index copied beside them
+cmp -s forces_before_restart.csv "output/${case}_earlier_2/${case}_forces.csv" || \
+    fail "the forces file was not set aside whole"
+cmp -s xdmf_before_restart.xdmf "output/${case}_earlier_2/$case.xdmf" || \
+    fail "the index of the set-aside files was not kept"
+awk -F, 'NR > 1 { if ($2 + 0 < last) exit 1; last = $2 + 0 }' "output/${case}_forces.csv" || \
+    fail "the continued forces file's steps run backwards"
+grep -q "^ *[0-9.E+-]*,1[0-9][0-9]," "output/${case}_forces.csv" || \
+    fail "the continued forces file has no rows after the restart"
 [ -e "output/${case}_000000.h5" ] || fail "the restart moved the first snapshot"
 
 newest=$(ls output/"${case}"_checkpoint_*.h5 | tail -1)
