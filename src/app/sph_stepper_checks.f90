@@ -8,6 +8,7 @@ submodule (sph_stepper) sph_stepper_checks
     use sph_memory, only: node_memory_bytes
     use sph_physics, only: physics_from_config
     use sph_walls, only: wall_layers
+    use sph_text_lines, only: next_line
     implicit none
 
 contains
@@ -243,16 +244,13 @@ contains
         function blocks_of(text) result(kept)
             character(len=*), intent(in) :: text
             character(len=:), allocatable :: kept, line
-            integer :: start, stop_at
+            integer :: start
             logical :: inside
             kept = ''
             inside = .false.
             start = 1
             do while (start <= len(text))
-                stop_at = index(text(start:), new_line('a'))
-                if (stop_at == 0) stop_at = len(text) - start + 2
-                line = text(start:start + stop_at - 2)
-                start = start + stop_at
+                call next_line(text, start, line)
                 if (.not. inside .and. len_trim(line) > 1) then
                     if (line(1:1) == '&') inside = any(groups == trim(line(2:)))
                 end if

@@ -18,6 +18,7 @@ module sph_earlier_output
     use sph_kinds, only: i8
     use sph_mpi_env, only: mpi_env_t, broadcast_text
     use sph_filesystem, only: list_directory, make_directories, rename_file
+    use sph_text_lines, only: next_line
     implicit none
     private
     public :: set_aside_earlier_output, earlier_file_step, FILE_NOT_OURS, FILE_NO_STEP
@@ -146,7 +147,7 @@ contains
         !> with them.
         subroutine split_continued_files()
             character(len=:), allocatable :: text, kept, line, path
-            integer :: start, stop_at, comma, second, read_stat
+            integer :: start, comma, second, read_stat
             integer(i8) :: row_step
             logical :: later
             path = directory // '/' // case_name // '_forces.csv'
@@ -156,10 +157,7 @@ contains
                 later = .false.
                 start = 1
                 do while (start <= len(text))
-                    stop_at = index(text(start:), new_line('a'))
-                    if (stop_at == 0) stop_at = len(text) - start + 2
-                    line = text(start:start + stop_at - 2)
-                    start = start + stop_at
+                    call next_line(text, start, line)
                     ! (a row: time, step, ...; the header's second field is not a number)
                     comma = index(line, ',')
                     second = index(line(comma + 1:), ',')
