@@ -36,7 +36,8 @@ module sph_stepper
     use sph_reference, only: reference_t
     use sph_snapshot, only: snapshot_filename, snapshot_begin, snapshot_end
     use sph_hdf5, only: h5_file_t, h5_write_attribute
-    use sph_health, only: health_problem_t, check_particles, check_timestep, HEALTH_OK
+    use sph_health, only: health_problem_t, check_particles, check_timestep, HEALTH_OK, &
+        HEALTH_NONFINITE, check_displacement
     use sph_checkpoint, only: read_checkpoint, find_latest_checkpoint
     use sph_read_checks, only: check_read_particles
     use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
@@ -853,11 +854,22 @@ contains
         type(mpi_env_t), intent(in) :: env
         logical, intent(in), optional :: subcycled
         real(wp), intent(in), optional :: moved
+        real(wp) :: step_move
         if (present(moved)) then
-            sim%drift = sim%drift + global_max(env, moved)
+            step_move = global_max(env, moved)
         else
-            sim%drift = sim%drift + global_max(env, max_step_displacement(sim%p))
+            step_move = global_max(env, max_step_displacement(sim%p))
         end if
+        ! a step that threw particles out of all proportion stops here, before the cell list
+        ! bins them (the health check after the step would come too late)
+        ! (finiteness first: a comparison with NaN traps in a debug build)
+        if (.not. ieee_is_finite(step_move)) then
+            call check_health(sim, env, step_move)
+        else if (step_move > maxval(sim%cfg%domain%box_hi(1:sim%cfg%domain%dimension) - &
+            sim%cfg%domain%box_lo(1:sim%cfg%domain%dimension))) then
+            call check_health(sim, env, step_move)
+        end if
+        sim%drift = sim%drift + step_move
         if (2.0_wp * sim%drift < 0.5_wp * sim%list_skin) then
             ! the sub-cycled step reads no ghost field before its next drift refreshes them
             ! (a zone update or a rebalance builds the halo anew)
@@ -925,9 +937,11 @@ contains
     !> Stop collectively when the run has become unhealthy (sph_health): non-finite values, a
     !> fluid particle inside a solid, a density outside the band, a collapsed time step. The
     !> lowest rank with a problem names it; a failure snapshot is written; exit status 3.
-    subroutine check_health(sim, env)
+    !> moved: the step's largest displacement, checked against the box (check_displacement).
+    subroutine check_health(sim, env, moved)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
+        real(wp), intent(in), optional :: moved
         type(health_problem_t) :: problem
         character(len=:), allocatable :: message, path, errmsg
         character(len=256) :: where
@@ -937,7 +951,14 @@ contains
         ! step the limits asked for
         if (sim%first_dt <= 0.0_wp) sim%first_dt = sim%uncapped_dt
         call check_particles(sim%cfg%health, sim%phys%rho0, sim%solids, sim%p, problem)
-        call check_timestep(sim%cfg%health, sim%first_dt, sim%uncapped_dt, problem)
+        call check_timestep(sim%cfg%health, sim%first_dt, sim%uncapped_dt, problem, sim%time)
+        ! a runaway step names itself rather than the first particle it threw into a wall
+        if (present(moved) .and. problem%code /= HEALTH_NONFINITE) then
+            problem = health_problem_t()
+            call check_displacement(moved, maxval(sim%cfg%domain%box_hi(1: &
+                sim%cfg%domain%dimension) - sim%cfg%domain%box_lo(1:sim%cfg%domain%dimension)), &
+                problem)
+        end if
         if (global_max(env, int(problem%code, i8)) == HEALTH_OK) return
         reporter = int(-global_max(env, int(merge(-env%rank, -huge(0), &
             problem%code /= HEALTH_OK), i8)))

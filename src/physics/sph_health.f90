@@ -16,12 +16,14 @@ module sph_health
     private
     public :: health_problem_t, check_particles, check_timestep
     public :: HEALTH_OK, HEALTH_NONFINITE, HEALTH_IN_SOLID, HEALTH_DENSITY, HEALTH_TIMESTEP
+    public :: HEALTH_RUNAWAY, check_displacement
 
     integer, parameter :: HEALTH_OK = 0
     integer, parameter :: HEALTH_NONFINITE = 1   !< a position, velocity or density is NaN/Inf
     integer, parameter :: HEALTH_IN_SOLID = 2    !< a fluid particle inside a wall or body
     integer, parameter :: HEALTH_DENSITY = 3     !< a fluid density outside the band
     integer, parameter :: HEALTH_TIMESTEP = 4    !< the time step collapsed
+    integer, parameter :: HEALTH_RUNAWAY = 5     !< a particle moved farther than the box in a step
     !> how deep (in the particle's smoothing length) behind a solid's surface counts as inside
     real(wp), parameter :: IN_SOLID_SLACK = 0.2_wp
     !> the screen of check_particles tests depths against the slack less this fraction of it
@@ -177,17 +179,53 @@ contains
         screen_clear = n_bad == 0
     end function screen_clear
 
-    !> The time step against the first one of the run.
-    subroutine check_timestep(limits, first_dt, dt, problem)
+    !> The time step against the first one of the run, and (time given) against the
+    !> resolution of the time: a step that no longer advances it (fixed_dt = 1e-30 s at
+    !> t = 0.02 s ran thousands of steps at one time, writing checkpoints, until killed; the
+    !> floor compares with the first step, which after a restart is the restart's own).
+    subroutine check_timestep(limits, first_dt, dt, problem, time)
         type(health_input_t), intent(in) :: limits
         real(wp), intent(in) :: first_dt, dt
         type(health_problem_t), intent(inout) :: problem
-        character(len=128) :: text
-        if (problem%code /= HEALTH_OK .or. limits%timestep_floor <= 0.0_wp) return
+        real(wp), intent(in), optional :: time
+        character(len=256) :: text
+        if (problem%code /= HEALTH_OK) return
+        if (present(time)) then
+            ! (a hundred steps to move the time by its last digit: hopeless all the same)
+            if (dt < 100.0_wp * spacing(abs(time))) then
+                write(text, '(a,es10.3,a,es12.5,a)') 'the time step ', dt, &
+                    ' s no longer advances the time (t = ', time, ' s): the time-step ' // &
+                    'limits (&numerics fixed_dt, cfl; the sound speed) ask for too short a step'
+                problem%code = HEALTH_TIMESTEP
+                problem%what = trim(text)
+                return
+            end if
+        end if
+        if (limits%timestep_floor <= 0.0_wp) return
         if (dt >= limits%timestep_floor * first_dt) return
         write(text, '(a,es10.3,a,es10.3,a)') 'the time step collapsed to ', dt, &
             ' s from ', first_dt, ' s (&health timestep_floor)'
         problem%code = HEALTH_TIMESTEP
         problem%what = trim(text)
     end subroutine check_timestep
+
+    !> The largest distance a particle moved in the step against the box's largest length:
+    !> farther (or not finite) and the step was far too long for its forces (a background
+    !> pressure of 1e30 Pa with a fixed step of 1 ms threw particles 1e27 m, and the cell
+    !> list's index overflowed before the particle check saw them).
+    subroutine check_displacement(moved, box_length, problem)
+        real(wp), intent(in) :: moved, box_length
+        type(health_problem_t), intent(inout) :: problem
+        character(len=200) :: text
+        if (problem%code /= HEALTH_OK) return
+        ! (finiteness first: a comparison with NaN traps in a debug build)
+        if (ieee_is_finite(moved)) then
+            if (moved <= box_length) return
+        end if
+        write(text, '(a,es10.3,a,es10.3,a)') 'a particle moved ', moved, &
+            ' m in one step, farther than the box is long (', box_length, ' m): the time ' // &
+            'step is far too long for the forces (&numerics fixed_dt, cfl; the sound speed)'
+        problem%code = HEALTH_RUNAWAY
+        problem%what = trim(text)
+    end subroutine check_displacement
 end module sph_health

@@ -64,5 +64,13 @@ sed -e 's/^ *t_end = .*/    t_end = 1.0e-5/' -e "s#^ *output_dir = .*#    output
 run "$np" wider0.nml > wider0.log 2>&1 || fail "the fresh wider run failed:" wider0.log
 [ "$(grep '^particles:' wider.log)" = "$(grep '^particles:' wider0.log)" ] || \
     fail "the walls laid again differ from a fresh start's:" wider.log
+# a time step below the time's resolution stops with a health failure naming the limits
+# (before: thousands of steps at one time, writing checkpoints, until killed)
+sed -e "s/^&numerics/\&numerics\n    fixed_dt = 1.0e-30/" extended.nml > frozen.nml
+run "$np" frozen.nml --restart "$checkpoint" > frozen.log 2>&1
+status=$?
+[ "$status" -eq 3 ] || fail "a frozen time step exited with $status, not 3:" frozen.log
+grep -q "error in health check: the time step  1.000E-30 s no longer advances the time" \
+    frozen.log || fail "no message for the frozen time step:" frozen.log
 echo "a Verlet checkpoint's rates: kept when only the run is extended, evaluated anew otherwise"
 echo "another rho0 and a max_steps already passed refused; walls laid again for a wider kernel"
