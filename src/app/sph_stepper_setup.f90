@@ -175,6 +175,12 @@ contains
                     // 'the rates depend on; its rates are evaluated anew')
             end if
         end if
+        ! (a changed force or viscosity read as an error of hundreds of percent, unexplained)
+        if (stat == 0 .and. trim(cfg%run%analytic) /= 'none') then
+            if (rates_inputs_differ(stored, cfg)) call log_info(what // ": &run analytic " // &
+                "describes a run made with this input from t = 0, not this one's continuation " &
+                // 'of a checkpoint made with another')
+        end if
         if (cfg%remesh%every_time > 0.0_wp) sim%next_remesh_time = &
             next_multiple(sim%time, cfg%remesh%every_time)
         sim%snapshot_index = index_text
