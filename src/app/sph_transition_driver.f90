@@ -62,9 +62,12 @@ module sph_transition_driver
     !> refining a uniform state next to a body: the fill takes a lattice site where no new
     !> point lies within this many fine spacings (sph_transition fill_next_to_bodies)
     real(wp), parameter :: FILL_GAP = 0.6_wp
-    !> the band next to a body whose new points are relaxed, and the least distance (in fine
-    !> spacings) a relaxed point keeps from a body and from the others (refine_uniform_state)
+    !> the band next to a body whose new points are relaxed, and the least distances (in fine
+    !> spacings) a relaxed point keeps from a body and from the others (refine_uniform_state;
+    !> with a floor of 0.4 the 3D band around a sphere had pairs 0.40 spacings apart, a fresh
+    !> lattice's closest are 0.60)
     real(wp), parameter :: RELAX_BODY_BAND = 3.0_wp, RELAX_BODY_GAP = 0.4_wp
+    real(wp), parameter :: RELAX_PAIR_FLOOR = 0.6_wp
 
     !> Lineage (split rule). Each particle carries, in the run-time field LINEAGE_FIELD,
     !> (1) the identity its fine children descend from, 0 for its own id, and (2) the identity
@@ -955,11 +958,23 @@ contains
                 xn, vid, parity, st, msg)
             if (global_max(env, int(st, i8)) /= 0) call fatal_collective('restart', &
                 'refining a uniform checkpoint: ' // trim(msg))
+            ! the points in the box, each once: those beyond a periodic face are copies of
+            ! points inside, and the fitting and relaxing below would move a copy apart from
+            ! its twin (a 3D band around a body that crossed a face had pairs 0.03 fine
+            ! spacings apart); what lies beyond a wall is dropped below anyway
+            keep = pack([(j, j = 1, n_new)], [(all(xn(1:dim, j) >= 0.0_wp .and. &
+                xn(1:dim, j) < cfg%domain%box_hi(1:dim) - cfg%domain%box_lo(1:dim)), &
+                j = 1, n_new)])
+            xn = xn(:, keep)
+            vid = vid(keep)
+            parity = parity(keep)
+            n_new = size(keep)
             ! next to a body the shifted rows are fitted to its surface (a fresh lattice's rule)
             allocate(fit(max(n_new, 1)))
-            call fit_to_bodies(dim, n_new, xn, cfg%domain%box_lo, level_phys(lv)%dx, solids, fit)
+            call fit_to_bodies(dim, n_new, xn, cfg%domain%box_lo, level_phys(lv)%dx, solids, &
+                box, fit)
             call fill_next_to_bodies(dim, n_new, xn, fit, cfg%domain%box_lo, &
-                cfg%domain%box_hi, level_phys(lv)%dx, solids, FILL_GAP, n_fill, x_fill, &
+                cfg%domain%box_hi, level_phys(lv)%dx, solids, FILL_GAP, box, n_fill, x_fill, &
                 parity_fill, site_fill)
             keep = pack([(j, j = 1, n_new)], fit(1:n_new))
             xn = reshape([xn(:, keep), x_fill], [3, size(keep) + n_fill])
@@ -1061,9 +1076,10 @@ contains
     contains
 
         !> The new points within RELAX_BODY_BAND fine spacings of a body relaxed as a
-        !> remesh relaxes its set (sph_remesh_relax, RELAX_PASSES passes; the other points
-        !> and the mirrors across the solids push, a move that would leave a point closer
-        !> than RELAX_BODY_GAP spacings to a body is not made). The fitted and filled rows
+        !> remesh relaxes its set (sph_remesh_relax, RELAX_PASSES passes; the other points,
+        !> their periodic images and the mirrors of both push; a move that would leave a
+        !> point closer than RELAX_BODY_GAP spacings to a body, or than RELAX_PAIR_FLOOR to
+        !> another point and closer than before, is not made). The fitted and filled rows
         !> are uneven (closest pair 0.51 spacings), and the band around Morris' cylinder
         !> refined from a uniform state at 50 s spread its densities over 969..1029 kg/m^3 by
         !> 350 s, against 986..1016 for a fresh start; relaxed, 978..1015, and the drag at
@@ -1079,14 +1095,13 @@ contains
             dfx = level_phys(lv)%dx
             allocate(moves(3, max(n_new, 1)))
             do pass = 1, RELAX_PASSES
-                nr = n_new
-                yr = xn(:, 1:n_new)
-                allocate(orr(n_new))
-                orr = [(q, q = 1, n_new)]
+                ! the points, their periodic images and the mirrors of both push
+                call with_periodic_images(dim, n_new, xn, .true., box, &
+                    2.0_wp * RELAX_H_FACTOR * dfx, yr, orr, nr)
                 call with_mirrors(dim, solids, cfg%domain%box_lo, 2.0_wp * RELAX_H_FACTOR * dfx, &
                     yr, orr, nr)
                 call relax_displacements(dim, n_new, nr, yr, dfx, moves, kept_list, &
-                    RELAX_BODY_GAP)
+                    RELAX_PAIR_FLOOR)
                 do q = 1, n_new
                     z = xn(:, q) + cfg%domain%box_lo
                     call nearest_body(solids, z, dist, nearest)
@@ -1095,8 +1110,9 @@ contains
                     call nearest_body(solids, z, dist, nearest)
                     if (dist < RELAX_BODY_GAP * dfx) cycle
                     xn(:, q) = xn(:, q) + moves(:, q)
+                    ! (back into the box across a periodic face; a wall's box is far larger)
+                    xn(1:dim, q) = modulo(xn(1:dim, q), box(1:dim))
                 end do
-                deallocate(orr)
             end do
         end subroutine relax_next_to_bodies
     end subroutine refine_uniform_state

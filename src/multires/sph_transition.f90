@@ -63,6 +63,7 @@
 module sph_transition
     use sph_kinds, only: wp, i8
     use sph_refine, only: refine_positions
+    use sph_remesh_images, only: with_periodic_images
     use sph_coarsen, only: coarsen_select, id_hash
     use sph_global_ids, only: id_order   ! the stable id sort (no communication)
     use sph_cell_list, only: neighbour_list_t, build_cross_list, build_neighbour_list
@@ -160,16 +161,23 @@ contains
     !> shift carries the surface row into the body on one side, and dropping what lay inside
     !> left a band of L/50 around Morris' cylinder 41 particles short of a fresh start's 496,
     !> its viscous drag half of that run's. A pushed point closer than MIN_PUSHED_GAP dx_new
-    !> to a kept one is dropped too (the points unmoved first, then the pushed ones in their
-    !> order: the result depends on positions and order only, not on ranks).
-    subroutine fit_to_bodies(dim, n, x, origin, dx_new, solids, keep)
+    !> (0.6: a fresh lattice's closest pairs next to a body) to a kept one is dropped too (the
+    !> points unmoved first, then the pushed ones in their order: the result depends on
+    !> positions and order only, not on ranks; neighbours across periodic faces included).
+    subroutine fit_to_bodies(dim, n, x, origin, dx_new, solids, box, keep)
         integer, intent(in) :: dim, n
         real(wp), intent(inout) :: x(:, :)
         real(wp), intent(in) :: origin(3), dx_new
         type(solids_t), intent(in) :: solids
+        !> the periodic lengths (x in [0, box); an axis of walls: a length so large that its
+        !> images meet nothing), for the neighbours across periodic faces
+        real(wp), intent(in) :: box(3)
         logical, intent(out) :: keep(:)
-        real(wp), parameter :: MIN_PUSHED_GAP = 0.4_wp
+        real(wp), parameter :: MIN_PUSHED_GAP = 0.6_wp
         type(neighbour_list_t) :: nl
+        real(wp), allocatable :: xi(:, :)
+        integer, allocatable :: orig(:)
+        integer :: ntot
         logical, allocatable :: pushed(:)
         real(wp) :: d, best, normal(3), y(3)
         integer :: k, s, nearest, t, j
@@ -193,12 +201,14 @@ contains
             pushed(k) = .true.
         end do
         if (.not. any(pushed)) return
-        call build_neighbour_list(x, n, n, dim, MIN_PUSHED_GAP * dx_new, nl, &
+        call with_periodic_images(dim, n, x, .true., box, MIN_PUSHED_GAP * dx_new, xi, orig, &
+            ntot)
+        call build_neighbour_list(xi, ntot, n, dim, MIN_PUSHED_GAP * dx_new, nl, &
             cell_size=0.5_wp * dx_new)
         do k = 1, n
             if (.not. pushed(k) .or. .not. keep(k)) cycle
             do t = nl%start(k), nl%start(k + 1) - 1
-                j = nl%index(t)
+                j = orig(nl%index(t))
                 if (j == k .or. .not. keep(j)) cycle
                 if (pushed(j) .and. j > k) cycle
                 keep(k) = .false.
@@ -218,9 +228,11 @@ contains
     !> box_lo), their lattice parities (odd index along an axis: its bit set) and linear
     !> indices (1 + (i - 1) + n1 ((j - 1) + n2 (k - 1)), for ids).
     subroutine fill_next_to_bodies(dim, n, x, keep, box_lo, box_hi, dx_new, solids, fill_gap, &
-            n_fill, x_fill, parity_fill, site_fill)
+            box, n_fill, x_fill, parity_fill, site_fill)
         integer, intent(in) :: dim, n
         real(wp), intent(in) :: x(:, :), box_lo(3), box_hi(3), dx_new, fill_gap
+        !> as fit_to_bodies' (the neighbours across periodic faces)
+        real(wp), intent(in) :: box(3)
         logical, intent(in) :: keep(:)
         type(solids_t), intent(in) :: solids
         integer, intent(out) :: n_fill
@@ -228,8 +240,9 @@ contains
         integer, allocatable, intent(out) :: parity_fill(:)
         integer(i8), allocatable, intent(out) :: site_fill(:)
         real(wp), parameter :: FILL_BAND = 1.5_wp
-        real(wp), allocatable :: xc(:, :), all_points(:, :)
-        integer, allocatable :: idx_c(:, :)
+        real(wp), allocatable :: xc(:, :), all_points(:, :), xi(:, :)
+        integer, allocatable :: idx_c(:, :), orig(:)
+        integer :: ntot
         integer :: n_sites(3), lo(3), hi(3), idx(3), a, i, j, k, s, nc, t, m
         real(wp) :: y(3), d, best, normal(3), xmin(3), xmax(3)
         type(neighbour_list_t) :: nl
@@ -286,14 +299,16 @@ contains
         all_points(:, 1:m) = x(:, pack([(i, i = 1, n)], keep(1:n)))
         all_points(dim + 1:, 1:m) = 0.0_wp
         all_points(:, m + 1:) = xc(:, 1:nc)
-        call build_neighbour_list(all_points, m + nc, m + nc, dim, fill_gap * dx_new, nl, &
+        call with_periodic_images(dim, m + nc, all_points, .true., box, fill_gap * dx_new, xi, &
+            orig, ntot)
+        call build_neighbour_list(xi, ntot, m + nc, dim, fill_gap * dx_new, nl, &
             cell_size=0.5_wp * dx_new)
         allocate(taken(nc))
         taken = .false.
         do i = 1, nc
             taken(i) = .true.
             do t = nl%start(m + i), nl%start(m + i + 1) - 1
-                j = nl%index(t)
+                j = orig(nl%index(t))
                 if (j == m + i) cycle
                 if (j <= m) then
                     taken(i) = .false.
