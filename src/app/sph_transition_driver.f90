@@ -1080,10 +1080,10 @@ contains
         !> their periodic images and the mirrors of both push; a move that would leave a
         !> point closer than RELAX_BODY_GAP spacings to a body, or than RELAX_PAIR_FLOOR to
         !> another point and closer than before, is not made). The fitted and filled rows
-        !> are uneven (closest pair 0.51 spacings), and the band around Morris' cylinder
-        !> refined from a uniform state at 50 s spread its densities over 969..1029 kg/m^3 by
-        !> 350 s, against 986..1016 for a fresh start; relaxed, 978..1015, and the drag at
-        !> 400 s within 2 % of the fresh start's (8.74e-7 against 8.59e-7 N/m).
+        !> are uneven, and the band around Morris' cylinder refined from a uniform state at
+        !> 50 s spread its densities over 969..1029 kg/m^3 by 350 s, against 986..1016 for a
+        !> fresh start; relaxed, 978..1016, and the drag at 400 s within 1 % of the fresh
+        !> start's (8.68e-7 against 8.59e-7 N/m).
         subroutine relax_next_to_bodies()
             real(wp), allocatable :: yr(:, :), moves(:, :)
             integer, allocatable :: orr(:)
