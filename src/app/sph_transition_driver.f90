@@ -1071,8 +1071,24 @@ contains
             call particles_free(lattice)
             deallocate(xs, fs, ids, order, ida, fa, fn, wanted, om)
         end do
+        ! the uniform state's walls where their level no longer reaches (under a fine band
+        ! along a plate: a fresh start lays none there, and they were kept, 192 in a 3D
+        ! channel), by the rule a fresh start lays each level's walls with
+        allocate(wanted(p%n_owned))
+        do j = 1, p%n_owned
+            wanted(j) = p%kind(j) /= KIND_WALL
+            if (.not. wanted(j)) wanted(j) = zones%distance_to_level(p%x(:, j), p%level(j)) < &
+                zones%width + level_phys(p%level(j))%kernel%support
+        end do
+        if (.not. all(wanted)) then
+            keep = pack([(j, j = 1, p%n_owned)], wanted)
+            call particles_gather(p, keep)
+            p%n_owned = size(keep)
+            p%n_total = p%n_owned
+        end if
         p%n_ghost = 0
         next_id = global_max_id(env, p%id, p%n_owned)
+
     contains
 
         !> The new points within RELAX_BODY_BAND fine spacings of a body relaxed as a

@@ -11,8 +11,9 @@
 # offline command's error, not a restart's), an input that ends before IN's time (no run
 # could continue OUT with it), an OUT that exists. A band along the lower plate
 # and a nested level-2 band, refined from the uniform checkpoint, hold the particles per level
-# and the real mass of the same inputs started afresh (before: the band lost the fine row
-# next to the plate, 2.5 % of the mass; the nested band came out empty, 20 %).
+# (walls included) and the real mass of the same inputs started afresh (before: the band lost
+# the fine row next to the plate, 2.5 % of the mass, and kept the coarse walls under it; the
+# nested band came out empty, 20 %).
 # usage: check_refine_regions.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM UNIFORM.nml MULTIRES.nml
 #        WORKDIR PYTHON COMPARER
 set -u
@@ -45,8 +46,9 @@ snap_b=$(ls b/*_0*.h5 | grep -v checkpoint | tail -1)
 "$python" "$comparer" "$snap_a" "$snap_b" > compare.log 2>&1 || \
     fail "the two ways differ at 0.02 s:" compare.log
 
-# the first progress line's per-level counts and the total real mass of a log
-levels() { grep -E "^ +level [0-9]: |^ +all levels: real mass" "$1" | \
+# the set-up's particle count (walls included) and the first progress line's per-level counts
+# and total real mass of a log
+levels() { grep -E "^particles: |^ +level [0-9]: |^ +all levels: real mass" "$1" | \
     sed -e 's/; per step.*//' -e 's/ (drift.*//' | head -"$2"; }
 sed -e 's/^ *lo = 0.0, 0.25e-3.*/    lo = 0.0, -1.0e-3/' \
     -e 's/^ *hi = 0.5e-3, 0.75e-3.*/    hi = 0.5e-3, 0.5e-3/' a.nml > wall.nml
@@ -54,7 +56,7 @@ cp a.nml nested.nml
 printf "&region\n    shape = 'box'\n    lo = 0.0, 0.4e-3\n    hi = 0.5e-3, 0.6e-3\n" \
     >> nested.nml
 printf "    level = 2\n/\n" >> nested.nml
-for variant in wall:3 nested:4; do
+for variant in wall:4 nested:5; do
     name=${variant%:*} lines=${variant#*:}
     sed -e "s#^ *output_dir = .*#    output_dir = '$name.fresh'#" \
         -e 's/^ *t_end = .*/    t_end = 0.0005/' $name.nml > $name.fresh.nml
