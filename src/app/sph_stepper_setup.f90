@@ -265,7 +265,7 @@ contains
         if (mass_after > 0.0_wp .and. abs(mass_after - mass_before) > 1.0e-12_wp * mass_before) &
             then
             call scale_masses(sim%p, mass_before / mass_after)
-            write(line, '(a, es12.5, a)') what // ': the refined levels'' masses scaled by ', &
+            write(line, '(a, es16.9, a)') what // ': the refined levels'' masses scaled by ', &
                 mass_before / mass_after, ' to the uniform state''s total'
             call log_info(trim(line))
         end if
