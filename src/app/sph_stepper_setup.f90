@@ -204,7 +204,12 @@ contains
         ! (the path first, apart: a line of fixed length cannot hold every path)
         write(line, '(a,es12.5,a,i0,a)') ' at t = ', sim%time, ' s, step ', sim%step, &
             merge(' (same decomposition)      ', ' (decomposition rebuilt)   ', same_layout)
-        call log_info('continuing from ' // path // trim(line))
+        if (what == 'restart') then
+            call log_info('continuing from ' // path // trim(line))
+        else
+            ! (an offline command reads the checkpoint; nothing continues here)
+            call log_info(what // ': read ' // path // trim(line))
+        end if
         if (stored_input /= sim%input_text) call log_info(what // ': the input differs ' // &
             'from the one stored in the checkpoint; the new input is used')
         call log_setup(sim, env)
