@@ -362,8 +362,13 @@ contains
     end procedure lay_lattice_walls
 
     module procedure next_multiple
+        ! (a ratio beyond the largest real would overflow: a trap in a debug build)
+        if (period <= time / (0.25_wp * huge(1.0_wp))) then
+            next = time
+            return
+        end if
         next = period * (aint(time / period * (1.0_wp + 1.0e-12_wp)) + 1.0_wp)
-        if (.not. (next > time .and. next <= huge(1.0_wp))) next = time
+        if (.not. next > time) next = time
     end procedure next_multiple
 
     module procedure halo_reach

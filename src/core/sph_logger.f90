@@ -2,6 +2,7 @@
 !> so a per-particle condition never floods the log.
 module sph_logger
     use, intrinsic :: iso_fortran_env, only: output_unit, error_unit, int64, real64
+    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
     implicit none
     private
     public :: VERBOSITY_QUIET, VERBOSITY_INFO, VERBOSITY_DEBUG
@@ -114,11 +115,12 @@ contains
         character(len=:), allocatable :: text
         character(len=32) :: buffer, form
         real(real64) :: limit
-        ! the largest magnitude that fits once rounded (a minus sign takes a digit's place);
-        ! the comparison is false for NaN
+        ! the largest magnitude that fits once rounded (a minus sign takes a digit's place)
         limit = 10.0_real64**(width - decimals - 1) - 0.5_real64 * 10.0_real64**(-decimals)
-        if (value < 0.0_real64) limit = limit / 10.0_real64
-        if (abs(value) < limit) then
+        ! (finiteness first: a comparison with NaN traps in a debug build)
+        if (.not. ieee_is_finite(value)) then
+            form = '(es12.5)'
+        else if (abs(value) < merge(limit / 10.0_real64, limit, value < 0.0_real64)) then
             write(form, '(a, i0, a, i0, a)') '(f', width, '.', decimals, ')'
         else
             form = '(es12.5)'
