@@ -225,17 +225,22 @@ def main():
               f'{"" if dim == 2 else " m"}')
         if args.max_imbalance is not None and abs(imbalance) > args.max_imbalance:
             failed = True
+        # (written so that a NaN fails: no fluid gave a NaN speed that passed before)
         if args.max_reference_deviation is not None and (
-                reference is None or
-                abs(100 * (speeds[-1] - reference) / reference) > args.max_reference_deviation):
+                reference is None or not
+                abs(100 * (speeds[-1] - reference) / reference) <= args.max_reference_deviation):
             failed = True
     for name, series in (('drag', drags), ('mean velocity', speeds),
                          ('resistance', resistances)):
         for k in range(1, len(series)):
             change = series[k] - series[k - 1]
-            line = f'{name} change {k}: {change:+.4e} ({100 * change / series[k]:+.3f} %)'
+            relative = 100 * change / series[k] if series[k] != 0 else float('nan')
+            line = f'{name} change {k}: {change:+.4e} ({relative:+.3f} %)'
             if k >= 2:
-                ratio = abs(change) / abs(series[k - 1] - series[k - 2])
+                # (two equal runs in a row: no change to compare with, not a division by 0)
+                previous = abs(series[k - 1] - series[k - 2])
+                ratio = abs(change) / previous if previous > 0 else \
+                    (0.0 if change == 0 else float('inf'))
                 line += f', ratio to the previous change {ratio:.3f}'
                 if args.require_convergence and name == 'resistance' and ratio > 0.5:
                     failed = True

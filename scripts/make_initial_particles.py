@@ -56,11 +56,22 @@ def _array(group, key, default, n):
 
 def read_case(path):
     """The keys the lattice depends on, with the program's defaults."""
-    nml = f90nml.read(path)
-    for group in ("body",):
-        if group in nml:
-            raise SystemExit(f"make_initial_particles: '{path}' has &{group} solids; "
-                             "only box walls are handled")
+    try:
+        nml = f90nml.read(path)
+    except (OSError, ValueError, StopIteration) as problem:
+        raise SystemExit(f"make_initial_particles: cannot read the namelist '{path}': {problem}")
+    if len(nml) == 0:
+        raise SystemExit(f"make_initial_particles: '{path}' holds no namelist group: not an "
+                         "input")
+    if "body" in nml:
+        raise SystemExit(f"make_initial_particles: '{path}' has &body solids; "
+                         "only box walls are handled")
+    # (sphremesh refuses initial particles with refinement regions: a uniform file for such an
+    # input was written, then refused by the run)
+    if "region" in nml:
+        raise SystemExit(f"make_initial_particles: '{path}' has &region groups; initial "
+                         "particles from a file are for one resolution level (sphremesh "
+                         "refuses them with &region)")
     domain, fluid, numerics = (_group(nml, g) for g in ("domain", "fluid", "numerics"))
     case = {
         "dimension": int(domain.get("dimension", 2)),

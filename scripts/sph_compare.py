@@ -27,7 +27,12 @@ def load(path):
             data = {name: group[name][()] for name in group}
             time = float(f.attrs["time"])
     except (OSError, KeyError) as err:
-        sys.exit(f"sph_compare: cannot read '{path}': {err}")
+        # (status 2, as the docstring says: an unreadable file is not a difference)
+        print(f"sph_compare: cannot read '{path}': {err}", file=sys.stderr)
+        sys.exit(2)
+    if "id" not in data:
+        print(f"sph_compare: cannot read '{path}': it has no /particles/id", file=sys.stderr)
+        sys.exit(2)
     order = np.argsort(data["id"], kind="stable")
     return time, {name: values[order] for name, values in data.items()}
 
@@ -64,9 +69,14 @@ def main(argv=None):
             print(f"{name:18s} {'identical' if bad == 0 else f'{bad} values differ'}")
             ok &= bad == 0
             continue
-        differ = int(np.count_nonzero(x != y))
-        scale = float(np.max(np.abs(x))) if x.size else 0.0
-        worst = float(np.max(np.abs(x - y))) if x.size else 0.0
+        # (a NaN in both at the same place is the same value: a failure snapshot and its
+        # copy were reported as differing)
+        same = (x == y) | (np.isnan(x) & np.isnan(y))
+        differ = int(np.count_nonzero(~same))
+        scale = float(np.nanmax(np.abs(x))) if np.isfinite(x).any() else 0.0
+        gaps = np.where(same, 0.0, np.abs(x - y))
+        gaps[np.isnan(gaps)] = np.inf
+        worst = float(np.max(gaps)) if x.size else 0.0
         relative = worst / scale if scale > 0 else worst
         extra = ""
         if name == "velocity" and x.size:

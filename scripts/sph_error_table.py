@@ -67,6 +67,9 @@ def snapshot_error(path, case=None, steady=False, level=None, band=None, outside
         fluid &= (pos[:, 1] >= band[0]) & (pos[:, 1] < band[1])
     if outside is not None:
         fluid &= (pos[:, 1] < outside[0]) | (pos[:, 1] >= outside[1])
+    if not fluid.any():
+        # (an empty selection has no error: it printed 0 % before)
+        raise ValueError("no fluid particle in the selection (--level, --band, --outside)")
     y = pos[fluid, 1] - par["y0"]
     t = np.inf if steady else time
     if case == "poiseuille":
@@ -105,7 +108,9 @@ def main(argv=None):
             return 1
         if time == 0 and not args.steady:
             continue
-        print(f"{path:<48} {time:10.4g} {par['dx'] / par['width']:8.4f} {n:7d} {100 * err:13.4f}%")
+        # the spacing of the level asked for (level L: dx / 2^L)
+        spacing = par["dx"] / 2 ** (args.level or 0)
+        print(f"{path:<48} {time:10.4g} {spacing / par['width']:8.4f} {n:7d} {100 * err:13.4f}%")
     return 0
 
 

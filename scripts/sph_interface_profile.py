@@ -6,7 +6,7 @@
 
 For every interface (a face of a &region box across the channel, read from the input stored in
 the snapshot, or given with --interfaces), the real fluid particles (kind 0, every level) in
-the bin of width --bin (default: the finest spacing) just below and just above it give a mean
+the bin of width --bin (default: &domain dx, the coarsest spacing) just below and just above it give a mean
 density and a mean streamwise velocity; the script prints both sides and the jump, the
 density jump in % of rho0 (the issue's criterion: below 0.2 %). With --figure, the profile of
 the streamwise velocity (particles coloured by level) and of the density in bins across the
@@ -64,16 +64,6 @@ def region_interfaces(text, y_lo, y_hi):
     return sorted(faces)
 
 
-def finest_spacing(text):
-    nml = f90nml.reads(text)
-    dx = float(nml["domain"]["dx"])
-    regions = nml.get("region", [])
-    if isinstance(regions, f90nml.Namelist):
-        regions = [regions]
-    levels = [int(region.get("level", 1)) for region in regions] or [0]
-    return dx / 2 ** max(levels)
-
-
 def side_means(data, y0, width):
     real = data["kind"] == 0
     below = real & (data["y"] >= y0 - width) & (data["y"] < y0)
@@ -92,14 +82,19 @@ def main(argv=None):
     parser.add_argument("snapshot", help="HDF5 snapshot of the multi-resolution run")
     parser.add_argument("uniform", nargs="*", help="snapshots of uniform runs (figure only)")
     parser.add_argument("--interfaces", type=float, nargs="+", help="interface positions y (m)")
-    parser.add_argument("--bin", type=float, help="bin width (m); default the finest spacing")
+    parser.add_argument("--bin", type=float,
+                        help="bin width (m); default &domain dx, the coarsest spacing")
     parser.add_argument("--limit", type=float, default=0.2,
                         help="largest density jump allowed, in %% of rho0 (default 0.2)")
     parser.add_argument("--figure", help="write the profile figure here (PNG)")
     args = parser.parse_args(argv)
 
-    data = load(args.snapshot)
-    par = channel_parameters(data["text"])
+    try:
+        data = load(args.snapshot)
+        par = channel_parameters(data["text"])
+    except (OSError, KeyError, ValueError) as problem:
+        print(f"sph_interface_profile: {args.snapshot}: {problem}", file=sys.stderr)
+        return 1
     rho0 = float(f90nml.reads(data["text"])["fluid"]["rho0"])
     y_lo, y_hi = par["y0"], par["y0"] + par["width"]
     faces = args.interfaces or region_interfaces(data["text"], y_lo, y_hi)
@@ -108,13 +103,27 @@ def main(argv=None):
     print(f"{'interface y [m]':>16} {'rho below':>12} {'rho above':>12} {'jump [% rho0]':>14} "
           f"{'u below':>12} {'u above':>12}")
     worst = 0.0
+    empty = []
     for y0 in faces:
         (rb, ub, nb), (ra, ua, na) = side_means(data, y0, width)
         jump = 100.0 * abs(ra - rb) / rho0
-        worst = max(worst, jump)
+        # (an empty bin has no mean: its NaN passed the limit before)
+        if nb == 0 or na == 0:
+            empty.append(y0)
+        else:
+            worst = max(worst, jump)
         print(f"{y0:16.6g} {rb:12.6f} {ra:12.6f} {jump:14.5f} {ub:12.5e} {ua:12.5e}")
     if args.figure:
-        draw(args, data, par, faces, width)
+        try:
+            draw(args, data, par, faces, width)
+        except (OSError, KeyError, ValueError) as problem:
+            print(f"sph_interface_profile: the figure '{args.figure}': {problem}",
+                  file=sys.stderr)
+            return 1
+    if empty:
+        print("sph_interface_profile: no real fluid particle within a bin of the interface at "
+              f"y = {', '.join(f'{y:.6g}' for y in empty)} m", file=sys.stderr)
+        return 1
     if worst > args.limit:
         print(f"sph_interface_profile: density jump {worst:.4f} % of rho0 exceeds "
               f"{args.limit} %", file=sys.stderr)

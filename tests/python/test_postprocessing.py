@@ -275,6 +275,31 @@ class TestErrorTable(PostProcessingTestCase):
             self.assertGreater(n, 0)
             self.assertLess(error, 1e-12, path)
 
+    def test_empty_selection_refused(self):
+        # (it printed an error of 0 % for no particle at all)
+        result = run("sph_error_table.py", "--level", "5", self.paths[-1])
+        self.assertCleanFailure(result, "no fluid particle in the selection")
+
+    def test_compare_nan_and_unreadable(self):
+        # the same NaN in both files agrees (a failure snapshot and its copy differed); a NaN
+        # against a number differs; an unreadable file is status 2, not a difference
+        folder = tempfile.mkdtemp(prefix="sph_pp_compare_")
+        try:
+            a, b = (os.path.join(folder, name) for name in ("a.h5", "b.h5"))
+            shutil.copy(self.paths[-1], a)
+            with h5py.File(a, "r+") as f:
+                f["particles/velocity"][0, 0] = np.nan
+            shutil.copy(a, b)
+            self.assertEqual(run("sph_compare.py", a, b).returncode, 0)
+            self.assertEqual(run("sph_compare.py", a, self.paths[-1]).returncode, 1)
+            with open(b, "wb") as f:
+                f.write(b"not hdf5")
+            result = run("sph_compare.py", a, b)
+            self.assertEqual(result.returncode, 2, result.stdout + result.stderr)
+            self.assertNotIn("Traceback", result.stderr)
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
+
     def test_channel_parameters(self):
         par = sph_error_table.channel_parameters(sph_snapshot.load(self.paths[0])["input"])
         self.assertAlmostEqual(par["width"], 1e-3)
