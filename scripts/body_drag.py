@@ -42,12 +42,23 @@ import sys
 import h5py
 import numpy as np
 
+from sph_snapshot import SnapshotError, complete_snapshots
 
-def input_text(output_dir, case):
-    files = sorted(glob.glob(os.path.join(output_dir, f'{case}_[0-9]*.h5')))
-    if not files:
-        raise SystemExit(f'body_drag: no snapshot {case}_*.h5 in {output_dir}')
-    with h5py.File(files[-1], 'r') as f:
+
+def snapshots(output_dir, case):
+    """(time, path) of the run's complete snapshots; unreadable ones skipped with a line."""
+    try:
+        found = complete_snapshots(output_dir, case, 'body_drag')
+    except SnapshotError as problem:
+        raise SystemExit(f'body_drag: {problem}') from None
+    if not found:
+        raise SystemExit(f'body_drag: no complete snapshot {case}_*.h5 in {output_dir}')
+    return found
+
+
+def input_text(found):
+    """The resolved input stored in the newest of the snapshots `found` (snapshots())."""
+    with h5py.File(found[-1][1], 'r') as f:
         text = f.attrs['input']
     return text.decode() if isinstance(text, bytes) else text
 
@@ -131,18 +142,23 @@ def case_of(output_dir, case):
     return os.path.basename(found[0])[:-len('_forces.csv')]
 
 
-def mean_speed(output_dir, case, t_from, axis):
+def mean_speed(found, t_from, axis):
     """Mass-weighted mean fluid velocity along the body force, averaged over the snapshots
     from t_from on (the superficial velocity of Darcy's law times the porosity)."""
     speeds = []
-    for name in sorted(glob.glob(os.path.join(output_dir, f'{case}_[0-9]*.h5'))):
-        with h5py.File(name, 'r') as f:
-            if float(f.attrs['time']) < t_from or int(f.attrs.get('write_complete', 0)) != 1:
-                continue
-            g = f['particles']
-            fluid = g['kind'][...] == 0
-            m = g['mass'][...][fluid]
-            speeds.append(float(np.sum(m * g['velocity'][...][fluid, axis]) / np.sum(m)))
+    for time, name in found:
+        if time < t_from:
+            continue
+        try:
+            with h5py.File(name, 'r') as f:
+                g = f['particles']
+                fluid = g['kind'][...] == 0
+                m = g['mass'][...][fluid]
+                speed = float(np.sum(m * g['velocity'][...][fluid, axis]) / np.sum(m))
+        except (OSError, KeyError) as problem:
+            print(f'body_drag: skipped {name}: not readable ({problem})', file=sys.stderr)
+            continue
+        speeds.append(speed)
     return float(np.mean(speeds)) if speeds else float('nan')
 
 
@@ -182,7 +198,8 @@ def main():
     drags, speeds, resistances, failed = [], [], [], False
     for out in args.output_dirs:
         case = case_of(out, args.case)
-        text = input_text(out, case)
+        found = snapshots(out, case)
+        text = input_text(found)
         dim = int(numbers(values(text, 'dimension'))[0])
         lo = np.array(numbers(values(text, 'box_lo'))[:dim])
         hi = np.array(numbers(values(text, 'box_hi'))[:dim])
@@ -194,10 +211,19 @@ def main():
         cell = float(np.prod(hi - lo))
         fluid = cell - body_measure(text, args.body, dim, hi - lo)
         rows = []
-        with open(os.path.join(out, f'{case}_forces.csv')) as f:
-            for row in csv.DictReader(f):
-                if row['body'].strip() == args.body:
+        forces = os.path.join(out, f'{case}_forces.csv')
+        try:
+            with open(forces) as f:
+                for row in csv.DictReader(f):
+                    if (row.get('body') or '').strip() != args.body:
+                        continue
+                    if None in row.values():
+                        # a last row cut short (a run killed while writing it)
+                        print(f'body_drag: {forces}: skipped a short row', file=sys.stderr)
+                        continue
                     rows.append(row)
+        except OSError as problem:
+            raise SystemExit(f'body_drag: cannot read {forces}: {problem.strerror}') from None
         if not rows:
             raise SystemExit(f"body_drag: no rows for '{args.body}' in {out}")
         t_end = float(rows[-1]['time'])
@@ -210,7 +236,7 @@ def main():
         expected = rho0 * force[axis] * fluid
         imbalance = 100.0 * (drag - expected) / expected
         drags.append(drag)
-        speeds.append(mean_speed(out, case, (1.0 - args.fraction) * t_end, axis))
+        speeds.append(mean_speed(found, (1.0 - args.fraction) * t_end, axis))
         porosity = fluid / cell
         # drag per unit superficial flow of the pressure-driven problem (module docstring)
         resistances.append(drag / porosity / (rho0 * nu * porosity * speeds[-1]))

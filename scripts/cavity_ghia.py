@@ -12,13 +12,14 @@ face (yhi), the box, dx and U are read from the input stored in the snapshots. P
 line per point and the RMS and largest error; exits 1 when a --max-* threshold is exceeded.
 """
 import argparse
-import glob
 import os
 import re
 import sys
 
 import h5py
 import numpy as np
+
+from sph_snapshot import SnapshotError, complete_snapshots
 
 # Ghia et al. (1982): u on the vertical centre line x = 1/2, v on the horizontal one y = 1/2
 GHIA_Y = np.array([0.0547, 0.0625, 0.0703, 0.1016, 0.1719, 0.2813, 0.4531, 0.5000, 0.6172,
@@ -48,14 +49,11 @@ def input_values(text, key):
 
 
 def snapshots(output_dir, case):
-    files = sorted(glob.glob(os.path.join(output_dir, f'{case}_[0-9]*.h5')))
-    out = []
-    for name in files:
-        with h5py.File(name, 'r') as f:
-            if int(f.attrs.get('write_complete', 0)) != 1:
-                continue
-            out.append((float(f.attrs['time']), name))
-    return sorted(out)
+    """(time, path) of the run's complete snapshots; unreadable ones skipped with a line."""
+    try:
+        return complete_snapshots(output_dir, case, 'cavity_ghia')
+    except SnapshotError as problem:
+        raise SystemExit(f'cavity_ghia: {problem}') from None
 
 
 def centre_line_means(name, lo, size, dx, lid_speed):
@@ -121,7 +119,15 @@ def main():
                                                                           nu))))
     u_ref, v_ref = np.array(GHIA_U[reynolds]), np.array(GHIA_V[reynolds])
 
-    means = [centre_line_means(name, lo, size, dx, lid_speed) for _, name in last]
+    means = []
+    for _, name in last:
+        try:
+            means.append(centre_line_means(name, lo, size, dx, lid_speed))
+        except (OSError, KeyError) as problem:
+            print(f'cavity_ghia: skipped {name}: not readable ({problem})', file=sys.stderr)
+    if len(means) < args.min_snapshots:
+        raise SystemExit(f'cavity_ghia: only {len(means)} readable snapshots in the last '
+                         f'{args.fraction:g} of the run; need {args.min_snapshots}')
     u_sph = np.mean([m[0] for m in means], axis=0)
     v_sph = np.mean([m[1] for m in means], axis=0)
     err = 100.0 * np.concatenate([u_sph - u_ref, v_sph - v_ref])

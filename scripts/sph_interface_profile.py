@@ -87,7 +87,8 @@ def main(argv=None):
     parser.add_argument("--limit", type=float, default=0.2,
                         help="largest density jump allowed, in %% of rho0 (default 0.2)")
     parser.add_argument("--figure", help="write the profile figure here (PNG)")
-    args = parser.parse_args(argv)
+    # (intermixed: uniform snapshots may follow an option, as in "A.h5 --figure f.png B.h5")
+    args = parser.parse_intermixed_args(argv)
 
     try:
         data = load(args.snapshot)

@@ -60,6 +60,15 @@ def row_means(y, u, dx):
     return ym, um, us
 
 
+def level_row_means(y, u, level, dx):
+    """row_means for each refinement level at its own spacing dx / 2^level (a multi-resolution
+    run's fine rows lie dx/2 apart: binned at dx they were averaged in pairs), sorted by y."""
+    parts = [row_means(y[level == lv], u[level == lv], dx / 2.0**lv) for lv in np.unique(level)]
+    ym, um, us = (np.concatenate([part[k] for part in parts]) for k in range(3))
+    order = np.argsort(ym, kind="stable")
+    return ym[order], um[order], us[order]
+
+
 def collect(inputs):
     files = []
     for item in inputs:
@@ -140,7 +149,7 @@ def main(argv=None):
         y = snap["position"][fluid, 1] - spar["y0"]
         u = snap["velocity"][fluid, 0]
         if args.average:
-            ym, um, us = row_means(y, u, spar["dx"])
+            ym, um, us = level_row_means(y, u, snap["level"][fluid], spar["dx"])
             ax.errorbar(ym / lscale, um / vscale, yerr=us / vscale, fmt="o", ms=3.5, mfc="white",
                         mec=colour, ecolor=colour, mew=1.0, elinewidth=0.8, capsize=1.5, zorder=3)
         else:

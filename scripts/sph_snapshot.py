@@ -160,6 +160,25 @@ def list_snapshots(directory, case=None):
     return [path for _, _, path in sorted(found)]
 
 
+def complete_snapshots(directory, case, tool):
+    """(time, path) of the complete snapshots <case>_<step>.h5 in a directory, sorted by time.
+
+    A file that h5py cannot open (a copy cut short, a disk that filled) or that lacks the
+    write_complete marker is skipped with one line on stderr naming it and ``tool``: the
+    other snapshots still answer. Raises SnapshotError if the directory does not exist."""
+    found = []
+    for path in list_snapshots(directory, case):
+        try:
+            with h5py.File(path, "r") as f:
+                if _plain(f.attrs.get("write_complete", 0)) != 1 or "time" not in f.attrs:
+                    raise SnapshotError("incomplete (no write_complete marker)")
+                found.append((float(_plain(f.attrs["time"])), path))
+        except (OSError, SnapshotError) as problem:
+            reason = str(problem) if isinstance(problem, SnapshotError) else "not readable"
+            print(f"{tool}: skipped {path}: {reason}", file=sys.stderr)
+    return sorted(found)
+
+
 def _vector(values, dim):
     return "(" + ", ".join(f"{v:.6g}" for v in values[:dim]) + ")"
 

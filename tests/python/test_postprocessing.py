@@ -481,5 +481,107 @@ class TestBodyDragCaseName(unittest.TestCase):
                 body_drag.case_of(tmp, None)
 
 
+class TestRowMeansPerLevel(unittest.TestCase):
+    """sph_plot_profiles --average: each level's rows at its own spacing."""
+
+    def test_fine_rows_kept_apart(self):
+        os.environ.setdefault("MPLBACKEND", "Agg")
+        import sph_plot_profiles
+        dx = 1e-4
+        coarse = (np.arange(10) + 0.5) * dx                  # rows of the coarse level
+        fine = 0.3e-3 + (np.arange(4) + 0.5) * dx / 2        # a band of level 1 at dx/2
+        coarse = coarse[(coarse < 0.3e-3) | (coarse > 0.5e-3)]
+        y = np.concatenate([np.repeat(coarse, 5), np.repeat(fine, 10)])
+        u = y * 2.0
+        level = np.concatenate([np.zeros(5 * len(coarse), int), np.ones(10 * len(fine), int)])
+        ym, um, us = sph_plot_profiles.level_row_means(y, u, level, dx)
+        np.testing.assert_allclose(ym, np.sort(np.concatenate([coarse, fine])), rtol=1e-12)
+        np.testing.assert_allclose(um, 2.0 * ym, rtol=1e-12)
+        self.assertTrue(np.all(us < 1e-12))
+
+
+class TestDamagedRunFolder(unittest.TestCase):
+    """A run folder with a snapshot cut short (a copy or a disk that filled), an unfinished
+    one and a forces file that is missing or ends in a short row: the reading scripts skip
+    what they cannot read, each with one line, and answer from the rest, or refuse in one
+    line; never a traceback."""
+
+    CYLINDER = """
+&body
+    name = 'cylinder'
+    shape = 'circle'
+    centre = 0.25e-3, 0.5e-3, 0.0
+    radius = 1.0e-4
+/
+"""
+
+    def setUp(self):
+        self.folder = tempfile.mkdtemp(prefix="sph_pp_damaged_")
+        text = input_text("poiseuille", 2, (0.5e-3, 1.0e-3, 0.0), 1e-4, 1e-6, 2e-4, 0.0)
+        self.text = text + self.CYLINDER
+        pos, kind = lattice(2, (0.5e-3, 1.0e-3, 0.0), 1e-4)
+        vel = np.zeros_like(pos)
+        vel[kind == 0, 0] = 1e-5
+        for step, time in ((10, 1.0), (20, 2.0), (30, 3.0), (40, 4.0)):
+            write_snapshot(os.path.join(self.folder, f"cyl_{step:06d}.h5"), time=time,
+                           step=step, dim=2, text=self.text, pos=pos, kind=kind, vel=vel,
+                           complete=step != 30)
+        # the newest snapshot cut short: h5py cannot open it
+        newest = os.path.join(self.folder, "cyl_000040.h5")
+        with open(newest, "rb") as f:
+            head = f.read(os.path.getsize(newest) // 3)
+        with open(newest, "wb") as f:
+            f.write(head)
+
+    def tearDown(self):
+        shutil.rmtree(self.folder, ignore_errors=True)
+
+    def write_forces(self, last_row_short):
+        rows = ["step,time,body,Fx,Fy,Fz", "10,1.0,cylinder,1e-9,0,0",
+                "20,2.0,cylinder,1e-9,0,0", "40,4.0,cylinder,1e-9,0,0"]
+        if last_row_short:
+            rows.append("50,5.0,cylinder,1e-9")
+        with open(os.path.join(self.folder, "cyl_forces.csv"), "w") as f:
+            f.write("\n".join(rows) + "\n")
+
+    def test_complete_snapshots_skip_damaged(self):
+        found = sph_snapshot.complete_snapshots(self.folder, "cyl", "test")
+        self.assertEqual([t for t, _ in found], [1.0, 2.0])
+        with self.assertRaises(ValueError):
+            sph_snapshot.complete_snapshots(os.path.join(self.folder, "no"), "cyl", "test")
+
+    def test_body_drag(self):
+        result = run("body_drag.py", self.folder, "--case", "cyl")
+        self.assertEqual(result.returncode, 1, result.stdout + result.stderr)
+        self.assertNotIn("Traceback", result.stderr)
+        self.assertIn("cannot read", result.stderr)
+        self.assertIn("cyl_forces.csv", result.stderr)
+        self.write_forces(last_row_short=True)
+        result = run("body_drag.py", self.folder, "--case", "cyl")
+        self.assertEqual(result.returncode, 0, result.stdout + result.stderr)
+        self.assertIn("skipped", result.stderr)
+        self.assertIn("cyl_000040.h5", result.stderr)
+        self.assertIn("short row", result.stderr)
+        self.assertIn("mean fluid velocity 1.000000e-05", result.stdout)
+
+    def test_interface_profile_options_between_files(self):
+        # uniform snapshots after an option are files, not "unrecognized arguments"
+        missing = os.path.join(self.folder, "missing.h5")
+        result = run("sph_interface_profile.py", missing, "--figure",
+                     os.path.join(self.folder, "f.png"), os.path.join(self.folder, "u.h5"))
+        self.assertEqual(result.returncode, 1, result.stdout + result.stderr)
+        self.assertIn("missing.h5", result.stderr)
+        self.assertNotIn("unrecognized", result.stderr)
+        self.assertNotIn("Traceback", result.stderr)
+
+    def test_cavity_ghia(self):
+        result = run("cavity_ghia.py", self.folder, "--case", "cyl", "--min-snapshots", "1")
+        self.assertNotIn("Traceback", result.stderr)
+        self.assertIn("skipped", result.stderr)
+        self.assertIn("cyl_000040.h5", result.stderr)
+        # this input has no moving lid: refused in one line after the snapshots were read
+        self.assertIn("moving upper face", result.stderr)
+
+
 if __name__ == "__main__":
     unittest.main()
