@@ -23,9 +23,9 @@
 !> decomposition of their own (domain_partition over their positions, migrate_particles),
 !> the new positions sent by rank 0 to the ranks owning them there, and each rank takes as
 !> ghosts the new particles within PAIR_REACH h (the support, 2 h per axis) of its part,
-!> those within MIRROR_REACH h of a solid within NEW_REACH_SOLIDS h (periodic images
+!> those with mirrors farther by the reach of the mirrors (ghost_reaches; periodic images
 !> included, sph_halo); h is the coarser spacing. When some old particle has no new one in
-!> its support, all within NEW_REACH h (NEW_REACH_SOLIDS h next to solids) are taken and the
+!> its support, all within NEW_REACH h (plus that of the mirrors) are taken and the
 !> accumulation repeated: its nearest may lie up to 4 h away. (With every ghost within the
 !> full reach a 3D refinement of 1.25 x 10^5 particles on 2 ranks peaked at 3.3 GB, 2.8
 !> times a run of the refined set, its transfer 3.7 s; now 1.4 GB and 1.4 s.) Each rank
@@ -68,14 +68,18 @@
 !> across both or all three walls: with_mirrors) of the old and new
 !> particles within MIRROR_REACH = 3 h of it, the old ones with their mass, velocity, density
 !> and energy (each rank mirrors the old particles it owns, and its new particles with their
-!> ghosts: the mirror of a new particle within 2 h of an old one lies at most
-!> (2 + 2 MIRROR_REACH) h from it, which NEW_REACH covers). A new particle next to a wall then
+!> ghosts, which reach as far as the mirrors of both can bring a pair within 2 h:
+!> ghost_reaches). A new particle next to a wall then
 !> sees old particles on both sides, as in the interior, and takes a mass that matches its
 !> volume (without mirrors the first row got 20 % too little: only the old row behind it
 !> reaches it). The mirrors' shares are dropped; as for a plane wall the exchange with the
 !> mirrors is symmetric only to round-off (and for a curved one to O(dx/R)), the new masses
-!> and densities are scaled alike by (old total mass) / (new total mass), and momentum gets
-!> the uniform correction above.
+!> are scaled by (old total mass) / (new total mass), and momentum gets the uniform
+!> correction above. The densities are not: the volume handed to the mirrors is short by
+!> the same fraction as the mass (the old particles hand both with one set of weights), so
+!> scaling the masses alone gives both back. (Scaling the densities too, as before, raised
+!> every fluid density by that factor: +0.7-0.9 % next to a 3D sphere or cylinder, +23 % for a
+!> coarsening around a box body 2 new spacings across; the fluid at rest then flowed.)
 !>
 !> Density: rho_new = m_new / (volume handed on), the volume m/rho of each old particle being
 !> handed on with the same weights as its mass (sph_remesh_interp): a uniform density stays
@@ -119,7 +123,6 @@ module sph_remesh_driver
     !> transfer: an isolated old particle's nearest within 4 h; next to solids the new
     !> particles whose mirrors lie within 2 h of an old one (module header)
     real(wp), parameter :: NEW_REACH = 4.0_wp
-    real(wp), parameter :: NEW_REACH_SOLIDS = 2.0_wp + 2.0_wp * MIRROR_REACH
     !> the reach (in h) of the new particles that no mirror involves, when no old particle
     !> is isolated: M4's support, 2 h per axis, and a margin for round-off
     real(wp), parameter :: PAIR_REACH = 2.0_wp * (1.0_wp + 1.0e-6_wp)
@@ -542,7 +545,7 @@ contains
             type(domain_t) :: parts
             type(particles_t) :: old, others
             type(halo_t) :: halo
-            real(wp), allocatable :: xo(:, :), xs(:, :), acc(:, :)
+            real(wp), allocatable :: xo(:, :), xs(:, :), acc(:, :), reach_new(:)
             integer, allocatable :: orig_o(:), orig_n(:)
             integer :: no, ns, i, nmf, nvf, own, n_isolated
             logical :: ok, full_reach
@@ -570,17 +573,18 @@ contains
             call migrate_particles(parts, env, old)
             ! p: the new particles this rank owns there, then those within reach as ghosts
             call scatter_new(parts)
-            reach = NEW_REACH * h
-            if (present(solids)) then
-                if (allocated(solids%list)) reach = NEW_REACH_SOLIDS * h
-            end if
-            call halo_setup(halo, parts, reach)
-            ! positions relative to box_lo, the mirrors across the solids after them
+            ! old positions relative to box_lo, the mirrors across the solids after them
             no = old%n_owned
             call relative_to(box_lo, old%x, no, xo, orig_o)
             if (present(solids)) &
                 call with_mirrors(dim, solids, box_lo, h * MIRROR_REACH, xo, orig_o, no)
             xo(dim + 1:, :) = 0.0_wp
+            reach_new = ghost_reaches(h, global_max(env, mirror_shift(xo, orig_o, &
+                old%n_owned, no)))
+            ! the full reach: an isolated old point's nearest new one within NEW_REACH h
+            reach = global_max(env, max(PAIR_REACH * h, maxval(reach_new))) + &
+                (NEW_REACH - PAIR_REACH) * h
+            call halo_setup(halo, parts, reach)
             ! sums from the old particles this rank owns (the ghosts' columns to their owners
             ! below): first with the ghosts that pairs within the support need (module
             ! header), again with all within the full reach when some old particle is isolated
@@ -590,7 +594,7 @@ contains
                 if (full_reach) then
                     call halo_build(halo, parts, env, p)
                 else
-                    call halo_build(halo, parts, env, p, ghost_reaches(h))
+                    call halo_build(halo, parts, env, p, reach_new)
                 end if
                 ns = p%n_total
                 call relative_to(box_lo, p%x, ns, xs, orig_n)
@@ -630,10 +634,9 @@ contains
             mass_new = global_sum(env, accurate_sum(p%m(1:own)))
             if (present(solids)) then
                 ! the mirrors' exchange is symmetric only for plane walls: restore the total
-                ! mass exactly, scaling the densities alike (volumes unchanged)
+                ! mass exactly; the volumes grow alike, the densities stay (module header)
                 scale = report%mass_before / mass_new
                 p%m(1:own) = p%m(1:own) * scale
-                p%rho(1:own) = p%rho(1:own) * scale
                 mass_new = global_sum(env, accurate_sum(p%m(1:own)))
             end if
             p%v(dim + 1:, 1:own) = 0.0_wp
@@ -655,27 +658,36 @@ contains
 
         !> Per new particle this rank owns, how far from a part of the transfer's
         !> decomposition it is needed there when no old particle is isolated: the support
-        !> (2 h, per axis, as the halo measures) and a margin for round-off; next to a solid
-        !> (within MIRROR_REACH h) NEW_REACH_SOLIDS h, for its mirrors (module header). The
+        !> (2 h, per axis, as the halo measures) and a margin for round-off; with mirrors, the
+        !> support plus the farthest any old point's mirror lies from it (old_shift) plus the
+        !> farthest this particle's own mirrors lie from it. An old point (particle or mirror)
+        !> is handled by the rank owning its particle, and its weights are normalised over
+        !> every new point (particle or mirror) within 2 h of it: the mirrors of old and new
+        !> pair too (their shares are dropped, their weights count), and around a body only
+        !> a few spacings across its mirrors lie far closer together than the particles they
+        !> mirror. With a fixed 2 h + 2 MIRROR_REACH h a rank missed some of those new
+        !> particles, and the masses around Morris-size bodies differed between rank counts
+        !> (7e-6 relative next to a 3D cylinder on 3 ranks, 3e-2 next to a box body). (The
         !> full reach took each rank's ghosts up to 2 h + 6 h away: in 3D on 2 ranks about
-        !> twice as many ghosts as owned new particles.
-        function ghost_reaches(hh) result(r)
-            real(wp), intent(in) :: hh   !< the transfer's spacing h
+        !> twice as many ghosts as owned new particles; now only next to solids.)
+        function ghost_reaches(hh, old_shift) result(r)
+            real(wp), intent(in) :: hh          !< the transfer's spacing h
+            real(wp), intent(in) :: old_shift   !< farthest old mirror from its particle
             real(wp), allocatable :: r(:)
-            integer :: i, s
+            real(wp), allocatable :: y(:, :)
+            integer, allocatable :: orig(:)
+            integer :: ny
             allocate(r(p%n_owned))
             r = PAIR_REACH * hh
             if (.not. present(solids)) return
             if (.not. allocated(solids%list)) return
-            do i = 1, p%n_owned
-                do s = 1, size(solids%list)
-                    if (solid_distance(solids%list(s), p%x(:, i)) < MIRROR_REACH * hh) then
-                        r(i) = NEW_REACH_SOLIDS * hh
-                        exit
-                    end if
-                end do
-            end do
+            call relative_to(box_lo, p%x, p%n_owned, y, orig)
+            ny = p%n_owned
+            call with_mirrors(dim, solids, box_lo, hh * MIRROR_REACH, y, orig, ny)
+            r = r + old_shift
+            call add_shifts(r, y, orig, p%n_owned, ny)
         end function ghost_reaches
+
 
         !> Rank 0 sends each new position (xn, relative to box_lo) and id (idn), in their
         !> order, to the rank owning it in `parts`; p (emptied) takes this rank's, with
@@ -812,6 +824,32 @@ contains
             orig(i) = i
         end do
     end subroutine relative_to
+
+    !> The farthest any mirror y(:, n + 1:ny) lies from the point it mirrors, y(:, orig(k))
+    !> (the points 1..n, orig the identity there: with_mirrors' layout); 0 without mirrors.
+    real(wp) function mirror_shift(y, orig, n, ny) result(shift)
+        real(wp), intent(in) :: y(:, :)
+        integer, intent(in) :: orig(:), n, ny
+        integer :: k
+        shift = 0.0_wp
+        do k = n + 1, ny
+            shift = max(shift, norm2(y(:, k) - y(:, orig(k))))
+        end do
+    end function mirror_shift
+
+    !> r(i) += the farthest mirror of point i from it (layout as mirror_shift's).
+    subroutine add_shifts(r, y, orig, n, ny)
+        real(wp), intent(inout) :: r(:)
+        real(wp), intent(in) :: y(:, :)
+        integer, intent(in) :: orig(:), n, ny
+        real(wp) :: own(n)
+        integer :: k
+        own = 0.0_wp
+        do k = n + 1, ny
+            own(orig(k)) = max(own(orig(k)), norm2(y(:, k) - y(:, orig(k))))
+        end do
+        r(1:n) = r(1:n) + own
+    end subroutine add_shifts
 
     !> y(:, 1:ny): the points of xs(:, 1:ns) (relative to box_lo) followed by their images
     !> on the periodic axes (any combination of shifts by whole box lengths) within `dist` of
