@@ -166,6 +166,25 @@ contains
         end do
     end function find_id
 
+    !> Append slots (ids, positions, copy flags) to a level's slot set, its id order anew. A
+    !> middle level of three gets two: from the coarser level and from the finer one (it was
+    !> allocated twice, and every run with a level-2 region stopped at its first zone update).
+    subroutine add_slots(set, id, x, copy)
+        type(slot_set_t), intent(inout) :: set
+        integer(i8), intent(in) :: id(:)
+        real(wp), intent(in) :: x(:, :)
+        logical, intent(in) :: copy(:)
+        if (.not. allocated(set%id)) then
+            allocate(set%id(0), set%x(3, 0), set%copy(0))
+        end if
+        set%id = [set%id, id]
+        set%x = reshape([set%x, x], [3, size(set%id)])
+        set%copy = [set%copy, copy]
+        if (allocated(set%order)) deallocate(set%order)
+        allocate(set%order(size(set%id)))
+        call id_order(set%id, size(set%id), set%order)
+    end subroutine add_slots
+
     !> Give p the lineage field (multi-resolution runs with the split rule), before any
     !> particle is made or read: a restart then reads it from the checkpoint (older ones lack
     !> it: no lineage known, as for the remeshing rule).
@@ -436,6 +455,7 @@ contains
             integer(i8), allocatable :: ids(:), vid(:)
             integer, allocatable :: par(:), new_parity(:), parent(:)
             real(wp), allocatable :: parent_mass(:), lineage(:, :)
+            logical, allocatable :: copy(:)
             real(wp) :: reach, dx_source, y(3), factor
             character(len=256) :: msg
             dx_source = level_phys(source)%dx
@@ -494,12 +514,8 @@ contains
                 errmsg = msg
                 n_new = 0
             end if
-            slots(target)%id = vid(1:n_new)
-            slots(target)%x = xn(:, 1:n_new)
-            allocate(slots(target)%order(n_new))
-            call id_order(slots(target)%id, n_new, slots(target)%order)
-            allocate(slots(target)%copy(n_new))
-            slots(target)%copy = .false.
+            allocate(copy(max(n_new, 1)))
+            copy = .false.
             if (lin > 0) then
                 ! children descend from their source's identity; a coarse virtual takes its
                 ! fine source's parent as its own identity
@@ -513,13 +529,14 @@ contains
                     end if
                 end do
                 if (target > source) call find_copies(target, n_new, xn, new_parity, &
-                    lineage, slots(target)%copy)
+                    lineage, copy)
             end if
+            call add_slots(slots(target), vid(1:n_new), xn(:, 1:n_new), copy(1:n_new))
             deallocate(take)
             allocate(take(max(n_new, 0)))
             do j = 1, n_new
                 y = xn(:, j)
-                take(j) = .not. slots(target)%copy(j)
+                take(j) = .not. copy(j)
                 if (take(j)) take(j) = .not. any(y(1:dim) < box_lo(1:dim) .or. &
                     y(1:dim) >= box_hi(1:dim))
                 if (take(j)) take(j) = deepest_solid(solids, y, 0.0_wp) == 0
