@@ -783,8 +783,8 @@ def case_remesh_continue(runner, args):
         window = ((3000.0, 6000.0),)
         drag = (window_drags(cont, "cylinder", window)[0],
                 window_drags(plain, "cylinder", window)[0])
-        speed = (body_drag.mean_speed(cont, "cylinder", 3000.0, 0),
-                 body_drag.mean_speed(plain, "cylinder", 3000.0, 0))
+        speed = (body_drag.mean_speed(body_drag.snapshots(cont, "cylinder"), 3000.0, 0),
+                 body_drag.mean_speed(body_drag.snapshots(plain, "cylinder"), 3000.0, 0))
         for what, (a, b), unit in (("drag, mean 3000-6000 s", drag, "N/m"),
                                    ("mean fluid velocity, 3000-6000 s", speed, "m/s")):
             block.lines.append(f"| {label} | {what} [{unit}] | {a:.4e} | {b:.4e} | "

@@ -279,6 +279,12 @@ contains
             'initial particles from a file' // not_yet // "; with &region leave it '' " // &
             '(the lattice)')
 
+        ! (a summed density of a real particle next to the interface counts the virtual
+        ! particles within one support of it only as far as the zone reaches: the shipped
+        ! Poiseuille band ran with a cross-flow, 31.6 % off at 0.01 s against 0.19 % with
+        ! continuity)
+        if (trim(num%density_method) == 'summation') call num_grp%error('density_method', &
+            "'summation'" // not_yet // "; with &region use 'continuity'")
         if (ref%max_subcycles > 1) call check_subcycling()
         ! the multi-resolution Verlet step (sph_stepper) has no shifting stage
         if (trim(num%integrator) == 'verlet' .and. trim(num%shifting) /= 'none') &
