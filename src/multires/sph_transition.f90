@@ -80,12 +80,16 @@ module sph_transition
 contains
 
     !> Id of a virtual particle of `level` made from the key (k1, k2): negative, 62 bits of
-    !> hash, the same on any rank count (keys derive from the source particles' ids).
+    !> hash, the same on any rank count (keys derive from the source particles' ids). The
+    !> keys are hashed in turn (id_hash is a bijection), so two keys collide only by chance.
+    !> (Hashed side by side, h(k1) xor h(k2 + level), every key with k1 = k2 + level gave
+    !> the id of h(0): an edge between places a and 4 a has the key (4 a + 1, 4 a), and the
+    !> refinement of a uniform state gave two virtual particles one id.)
     pure integer(i8) function virtual_id(level, k1, k2)
         integer, intent(in) :: level
         integer(i8), intent(in) :: k1, k2
         integer(i8) :: z
-        z = id_hash(ieor(id_hash(k1), id_hash(k2 + int(level, i8))))
+        z = id_hash(ieor(id_hash(ieor(id_hash(k1), k2)), int(level, i8)))
         virtual_id = -(1_i8 + iand(z, ishft(1_i8, 62) - 1_i8))
     end function virtual_id
 
@@ -433,8 +437,8 @@ contains
                 end do
                 parity(k) = corner
                 parent(k) = i
-                ! the corner's key is negative: virtual_id's two keys commute, and ids are
-                ! not negative, so no (source, corner) pair can meet another one swapped
+                ! the corner's key is negative: ids are not negative, so no (source,
+                ! corner) key can equal a key of two ids
                 vid(k) = virtual_id(level, ids(i), -16_i8 - corner)
             end do
         end do
