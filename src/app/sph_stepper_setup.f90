@@ -4,7 +4,7 @@
 !> documentation are in sph_stepper.
 submodule (sph_stepper) sph_stepper_setup
     use sph_domain, only: domain_owner
-    use sph_logger, only: log_warn
+    use sph_logger, only: log_warn, int_text, sci_text
     implicit none
 
 contains
@@ -60,6 +60,7 @@ contains
         type(mpi_env_t), intent(in) :: env
         integer(i8), allocatable :: n_real(:), n_virtual(:)
         real(wp), allocatable :: momentum(:, :)
+        integer :: lv
         if (.not. multires(sim)) return
         sim%next_id = global_max_id(env, sim%p%id, sim%p%n_owned)
         allocate(n_real(0:sim%zones%n_levels - 1), n_virtual(0:sim%zones%n_levels - 1))
@@ -67,6 +68,22 @@ contains
         allocate(momentum(3, 0:sim%zones%n_levels - 1))
         call level_totals(env, sim%p, sim%zones%n_levels, n_real, n_virtual, &
             sim%first_level_mass, momentum)
+        ! a region that holds no site of its level's lattice (inside a body, or a band thinner
+        ! than half a spacing) makes a level of virtual particles only, and one that covers
+        ! all of the fluid leaves level 0 none: the run went on without a word
+        do lv = 0, sim%zones%n_levels - 1
+            if (n_real(lv) > 0) cycle
+            if (lv == 0) then
+                call log_warn('level 0 holds no real fluid particle: the &region groups ' // &
+                    'cover all of the fluid; use one resolution (dx / 2^level) instead')
+            else
+                call log_warn('level ' // int_text(int(lv, i8)) // ' holds no real fluid ' // &
+                    'particle: its &region groups hold no site of its lattice (inside a ' // &
+                    'body, or thinner than half its spacing ' // &
+                    trim(sci_text(sim%level_phys(lv)%dx)) // ' m); it has virtual particles ' // &
+                    'only and refines nothing')
+            end if
+        end do
         ! a restart has them from its checkpoint (simulation_restart)
         if (sim%reference_mass <= 0.0_wp) sim%reference_mass = sum(sim%first_level_mass)
         if (.not. allocated(sim%level_push)) then
