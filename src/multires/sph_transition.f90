@@ -232,7 +232,7 @@ contains
     !> box_lo), their lattice parities (odd index along an axis: its bit set) and linear
     !> indices (1 + (i - 1) + n1 ((j - 1) + n2 (k - 1)), for ids).
     subroutine fill_next_to_bodies(dim, n, x, keep, box_lo, box_hi, dx_new, solids, fill_gap, &
-            box, n_fill, x_fill, parity_fill, site_fill)
+            box, n_fill, x_fill, parity_fill, site_fill, band)
         integer, intent(in) :: dim, n
         real(wp), intent(in) :: x(:, :), box_lo(3), box_hi(3), dx_new, fill_gap
         !> as fit_to_bodies' (the neighbours across periodic faces)
@@ -243,7 +243,10 @@ contains
         real(wp), allocatable, intent(out) :: x_fill(:, :)
         integer, allocatable, intent(out) :: parity_fill(:)
         integer(i8), allocatable, intent(out) :: site_fill(:)
+        !> the band (in dx_new) whose sites are candidates (default FILL_BAND)
+        real(wp), intent(in), optional :: band
         real(wp), parameter :: FILL_BAND = 1.5_wp
+        real(wp) :: reach_band
         real(wp), allocatable :: xc(:, :), all_points(:, :), xi(:, :)
         integer, allocatable :: idx_c(:, :), orig(:)
         integer :: ntot
@@ -254,6 +257,8 @@ contains
         integer :: nearest
         n_fill = 0
         allocate(x_fill(3, 0), parity_fill(0), site_fill(0))
+        reach_band = FILL_BAND
+        if (present(band)) reach_band = band
         if (.not. allocated(solids%list)) return
         if (all(solids%list(:)%shape == SOLID_PLANE)) return
         if (.not. any(keep(1:n))) return
@@ -264,8 +269,8 @@ contains
         xmax = 0.0_wp
         do a = 1, dim
             n_sites(a) = nint((box_hi(a) - box_lo(a)) / dx_new)
-            xmin(a) = minval(x(a, 1:n), mask=keep(1:n)) - FILL_BAND * dx_new
-            xmax(a) = maxval(x(a, 1:n), mask=keep(1:n)) + FILL_BAND * dx_new
+            xmin(a) = minval(x(a, 1:n), mask=keep(1:n)) - reach_band * dx_new
+            xmax(a) = maxval(x(a, 1:n), mask=keep(1:n)) + reach_band * dx_new
             lo(a) = max(1, floor(xmin(a) / dx_new + 0.5_wp))
             hi(a) = min(n_sites(a), ceiling(xmax(a) / dx_new + 0.5_wp))
         end do
@@ -279,7 +284,7 @@ contains
                     y = 0.0_wp
                     y(1:dim) = (real(idx(1:dim), wp) - 0.5_wp) * dx_new
                     call nearest_body(solids, y + box_lo, best, nearest)
-                    if (best <= 0.0_wp .or. best >= FILL_BAND * dx_new) cycle
+                    if (best <= 0.0_wp .or. best >= reach_band * dx_new) cycle
                     if (best < 0.5_wp * dx_new) then
                         normal = solid_normal(solids%list(nearest), y + box_lo)
                         normal(dim + 1:) = 0.0_wp
