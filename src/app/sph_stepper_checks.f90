@@ -238,22 +238,33 @@ contains
     module procedure rates_inputs_differ
         character(len=*), parameter :: groups(6) = [character(len=10) :: 'domain', 'fluid', &
             'numerics', 'body', 'refinement', 'region']
-        differ = blocks_of(stored%resolved) /= blocks_of(cfg%resolved)
+        ! &domain dx compared by value: a remeshed checkpoint's stored text keeps the spacing
+        ! it was started with, its value (the caller's stored%domain%dx) the one it has now
+        ! (compared as text, every restart after an in-run refinement evaluated the rates
+        ! anew, and a velocity-Verlet run could not continue bit for bit)
+        differ = blocks_of(stored%resolved) /= blocks_of(cfg%resolved) .or. &
+            abs(stored%domain%dx - cfg%domain%dx) > 1.0e-12_wp * cfg%domain%dx
     contains
-        !> The blocks of those groups in a resolved text ('&name' line to '/' line), in order.
+        !> The blocks of those groups in a resolved text ('&name' line to '/' line), in order,
+        !> without &domain's dx line.
         function blocks_of(text) result(kept)
             character(len=*), intent(in) :: text
             character(len=:), allocatable :: kept, line
             integer :: start
-            logical :: inside
+            logical :: inside, in_domain
             kept = ''
             inside = .false.
+            in_domain = .false.
             start = 1
             do while (start <= len(text))
                 call next_line(text, start, line)
                 if (.not. inside .and. len_trim(line) > 1) then
-                    if (line(1:1) == '&') inside = any(groups == trim(line(2:)))
+                    if (line(1:1) == '&') then
+                        inside = any(groups == trim(line(2:)))
+                        in_domain = trim(line(2:)) == 'domain'
+                    end if
                 end if
+                if (in_domain .and. index(adjustl(line), 'dx =') == 1) cycle
                 if (inside) kept = kept // line // new_line('a')
                 if (trim(line) == '/') inside = .false.
             end do

@@ -151,6 +151,9 @@ contains
         ! checkpoint's are evaluated again), and its particles (walls and bodies included)
         ! were laid for its geometry
         call config_parse(stored, stored_input, 'checkpoint input', stat, errmsg)
+        ! a remeshed checkpoint keeps its input as given, with the spacing the run or the
+        ! offline remesh changed to beside it (a restart must give that one: refused below)
+        if (stat == 0 .and. stored_dx > 0.0_wp) stored%domain%dx = stored_dx
         sim%rates_stale = .true.
         if (stat == 0) then
             sim%rates_stale = trim(stored%numerics%integrator) /= 'verlet'
