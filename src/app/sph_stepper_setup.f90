@@ -164,9 +164,9 @@ contains
             ! at its first step, as a density outside &health density_band
             if (abs(stored%fluid%rho0 - cfg%fluid%rho0) > 1.0e-12_wp * stored%fluid%rho0) then
                 ! (all the digits: the refusal is to 1e-12, and 1000.0000001 printed as 1000)
-                write(line, '(a, es24.16, a, es24.16, a)') "the checkpoint's fluid has &fluid " // &
-                    'rho0 = ', stored%fluid%rho0, ' kg/m^3 but the input ', cfg%fluid%rho0, &
-                    ' kg/m^3; continue with the checkpoint''s rest density'
+                write(line, '(a, es24.16, a, es24.16, a)') "the checkpoint's fluid has " // &
+                    '&fluid rho0 = ', stored%fluid%rho0, ' kg/m^3 but the input ', &
+                    cfg%fluid%rho0, ' kg/m^3; continue with the checkpoint''s rest density'
                 call fatal_collective(what, trim(line))
             end if
             walls_changed = walls_mismatch(stored, cfg)
