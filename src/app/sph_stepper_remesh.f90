@@ -4,7 +4,7 @@
 !> Split from sph_stepper so that each file holds one concern; the interfaces and their
 !> documentation are in sph_stepper.
 submodule (sph_stepper) sph_stepper_remesh
-    use sph_logger, only: log_warn_counted, log_warn, sci_text
+    use sph_logger, only: log_warn_counted, log_warn, sci_text, fixed_text
     use sph_physics, only: physics_from_config
     use sph_walls, only: solids_from_config
     use sph_disorder_measure, only: nearest_distance_sums, disorder_from_sums
@@ -203,6 +203,10 @@ contains
         call refresh_ghosts(sim, env, HALO_GHOST)
         call build_mirrors(sim%phys, sim%solids, sim%p)
         call compute_summation_density(sim%phys, sim%p, sim%nl)
+        ! what the run goes on with: the mismatch after the total mass was restored (the last
+        ! pass's, before it, was logged: 3.7e-2 where the densities ended 6.5 % off)
+        report%mismatch_after = global_max(env, maxval(abs(sim%p%rho(1:n) / handed - &
+            1.0_wp), mask=fluid))
         call refresh_ghosts(sim, env, HALO_DENSITY)
         call build_mirrors(sim%phys, sim%solids, sim%p)
     end subroutine summation_masses
@@ -332,6 +336,13 @@ contains
             report%mass_passes, ' passes, largest |kernel sum / handed-on density - 1| ', &
             report%mismatch_before, ' -> ', report%mismatch_after
         call log_info(trim(line))
+        ! (a same-level remesh of a fluid at rest next to a small body: densities 0.4-6.5 %
+        ! above rho0, and the fluid started to move)
+        if (report%mismatch_after > 0.01_wp) call log_warn_counted('summation_mismatch', &
+            'remesh: with the total mass held, the new set''s kernel sums stay up to ' // &
+            trim(adjustl(fixed_text(100.0_wp * report%mismatch_after, 8, 2))) // &
+            ' % off the densities handed on, and the run goes on with them; ' // &
+            'density_method = ''continuity'' keeps the handed-on densities')
     end subroutine log_remesh
 
     module procedure simulation_remesh_file
