@@ -137,7 +137,10 @@ contains
         ! partition below and the migration hand them to their owners
         if (regenerate) call lay_lattice_walls(sim, env)
         call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
-        call halo_setup(sim%halo, sim%domain, sim%phys%kernel%support + sim%skin)
+        ! (the reach every set-up, restart and rebalance uses: with support + skin alone the
+        ! run held fewer ghosts than a restart from a later checkpoint builds, and on 2 ranks
+        ! the restart differed from the run by round-off)
+        call halo_setup(sim%halo, sim%domain, halo_reach(sim))
         call migrate(sim, env)
         ! in id order before the cell sort, as on set-up: independent of the arrival order
         allocate(order(sim%p%n_owned))
