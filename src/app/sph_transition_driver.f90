@@ -43,7 +43,7 @@ module sph_transition_driver
     use sph_zones, only: zones_t, MAX_LEVEL
     use sph_initial, only: create_lattice_particles, site_filter_t
     use sph_global_ids, only: global_max_id, assign_global_ids, id_order
-    use sph_cell_list, only: neighbour_list_t
+    use sph_cell_list, only: neighbour_list_t, build_cross_list
     use sph_kernel, only: kernel_t
     use sph_transition, only: fine_virtual_positions, coarse_virtual_positions, &
         fine_virtual_split, coarse_virtual_parity, &
@@ -83,6 +83,10 @@ module sph_transition_driver
     !> Identities are real global ids; they stay far below 2^53, so real(wp) holds them.
     character(len=*), parameter :: LINEAGE_FIELD = 'lineage'
     real(wp), parameter :: COPY_DISTANCE = 0.5_wp
+    !> a slot this close (in its level's spacings, per axis) to a real particle of its level
+    !> stands on it (find_coincident): duplicates came 0.0004-0.002 spacings apart, a fresh
+    !> lattice's closest pairs lie 0.6 apart
+    real(wp), parameter :: COINCIDENT = 0.05_wp
 
     !> What the transition updates did since the counters were last reset (this rank).
     type :: level_stats_t
@@ -555,6 +559,7 @@ contains
                 if (target > source) call find_copies(target, n_new, xn, new_parity, &
                     lineage, copy)
             end if
+            call find_coincident(target, n_new, xn, copy)
             call add_slots(slots(target), vid(1:n_new), xn(:, 1:n_new), copy(1:n_new))
             deallocate(take)
             allocate(take(max(n_new, 0)))
@@ -667,6 +672,40 @@ contains
                 end do
             end do
         end subroutine find_copies
+
+        !> copy(j) set where slot j of level `target` lies within COINCIDENT spacings of a
+        !> real particle of that level: it would stand on it. Lineage cannot say so for a
+        !> coarse slot (refusing coarse copies by identity drained the ring, above), nor for
+        !> particles without lineage; a slot that coincides with a real particle to round-off
+        !> can only be its copy. Without it, a coarse particle on a band's edge (a lattice
+        !> site exactly radius + distance from the body) was copied by the coarse virtual
+        !> made from its own child whenever rounding put one on each side of the edge: 3-4
+        !> real particles within 0.002 spacings of one another (input/cylinder_multires.nml,
+        !> a 16 mm band at dx = 4 mm), and the same after refining a uniform channel.
+        subroutine find_coincident(target, n, x, copy)
+            integer, intent(in) :: target, n
+            real(wp), intent(in) :: x(:, :)
+            logical, intent(inout) :: copy(:)
+            type(neighbour_list_t) :: near
+            real(wp), allocatable :: xr(:, :)
+            integer, allocatable :: reals(:)
+            integer :: j, r
+            if (n == 0) return
+            ! the real particles of the level that stay in its region (one leaving now is
+            ! replaced by the virtual standing in for it)
+            reals = pack([(r, r = 1, p%n_owned + p%n_ghost)], &
+                p%level(1:p%n_owned + p%n_ghost) == target .and. &
+                p%kind(1:p%n_owned + p%n_ghost) == KIND_FLUID)
+            reals = pack(reals, [(zones%level_at(p%x(:, reals(r))) == target, &
+                r = 1, size(reals))])
+            if (size(reals) == 0) return
+            xr = p%x(:, reals)
+            call build_cross_list(x, n, xr, size(reals), dim, &
+                COINCIDENT * level_phys(target)%dx, near)
+            do j = 1, n
+                if (near%start(j + 1) > near%start(j)) copy(j) = .true.
+            end do
+        end subroutine find_coincident
 
         subroutine append_set(set)
             type(new_set_t), intent(in) :: set
