@@ -586,8 +586,8 @@ contains
             if (present(solids)) &
                 call with_mirrors(dim, solids, box_lo, h * MIRROR_REACH, xo, orig_o, no)
             xo(dim + 1:, :) = 0.0_wp
-            reach_new = ghost_reaches(h, global_max(env, mirror_shift(xo, orig_o, &
-                old%n_owned, no)))
+            reach_new = ghost_reaches(h, global_max(env, max(0.0_wp, &
+                maxval(mirror_shifts(xo, orig_o, old%n_owned, no)))))
             ! the full reach: an isolated old point's nearest new one within NEW_REACH h
             reach = global_max(env, max(PAIR_REACH * h, maxval(reach_new))) + &
                 (NEW_REACH - PAIR_REACH) * h
@@ -692,7 +692,7 @@ contains
             ny = p%n_owned
             call with_mirrors(dim, solids, box_lo, hh * MIRROR_REACH, y, orig, ny)
             r = r + old_shift
-            call add_shifts(r, y, orig, p%n_owned, ny)
+            r = r + mirror_shifts(y, orig, p%n_owned, ny)
         end function ghost_reaches
 
 
@@ -832,31 +832,18 @@ contains
         end do
     end subroutine relative_to
 
-    !> The farthest any mirror y(:, n + 1:ny) lies from the point it mirrors, y(:, orig(k))
-    !> (the points 1..n, orig the identity there: with_mirrors' layout); 0 without mirrors.
-    real(wp) function mirror_shift(y, orig, n, ny) result(shift)
+    !> Per point 1..n, the farthest of its mirrors y(:, n + 1:ny) lies from it (orig(k): the
+    !> point mirror k mirrors, the identity on 1..n: with_mirrors' layout); 0 without one.
+    function mirror_shifts(y, orig, n, ny) result(shift)
         real(wp), intent(in) :: y(:, :)
         integer, intent(in) :: orig(:), n, ny
+        real(wp) :: shift(n)
         integer :: k
         shift = 0.0_wp
         do k = n + 1, ny
-            shift = max(shift, norm2(y(:, k) - y(:, orig(k))))
+            shift(orig(k)) = max(shift(orig(k)), norm2(y(:, k) - y(:, orig(k))))
         end do
-    end function mirror_shift
-
-    !> r(i) += the farthest mirror of point i from it (layout as mirror_shift's).
-    subroutine add_shifts(r, y, orig, n, ny)
-        real(wp), intent(inout) :: r(:)
-        real(wp), intent(in) :: y(:, :)
-        integer, intent(in) :: orig(:), n, ny
-        real(wp) :: own(n)
-        integer :: k
-        own = 0.0_wp
-        do k = n + 1, ny
-            own(orig(k)) = max(own(orig(k)), norm2(y(:, k) - y(:, orig(k))))
-        end do
-        r(1:n) = r(1:n) + own
-    end subroutine add_shifts
+    end function mirror_shifts
 
     !> y(:, 1:ny): the points of xs(:, 1:ns) (relative to box_lo) followed by their images
     !> on the periodic axes (any combination of shifts by whole box lengths) within `dist` of
