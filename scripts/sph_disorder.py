@@ -5,7 +5,12 @@
 
 For the fluid particles (kind 0) of each file: their count, the mean and the coefficient of
 variation (std / mean) of the nearest-neighbour distance, the minimum pair distance (the
-smallest nearest-neighbour distance) and the density spread (min, max, std / mean). With two
+smallest nearest-neighbour distance), the density spread (min, max, std / mean) and the spread
+of the kernel sum of volumes, sum_j (m_j / rho_j) W(r_ij, h_i) (cubic B-spline at each fluid
+particle's smoothing length, over the fluid, wall and virtual particles of its level). That
+sum is 1 on an even set; it shows the holes and clumps at the kernel's scale that the nearest
+distances miss (Morris' L/25 cylinder flow at 1500 s: 0.015; refined, 0.16 before the refined
+set was relaxed, 0.06 after). With two
 files (say before and after a remesh) also the ratios second / first of the count, the mean
 nearest-neighbour distance and its coefficient of variation: a refinement in 2D should show
 a count ratio of 4 and a mean ratio of 1/2, a coarsening the inverse, with a CoV ratio near 1
@@ -45,37 +50,73 @@ def periodic_axes(snap, dim):
         return [False] * dim
 
 
+def periodic_frame(points, lo, hi, periodic):
+    """points moved into [0, size) along the periodic axes of the box [lo, hi), and the box
+    sizes for cKDTree (None for an open set): an open axis gets a period longer than
+    twice its extent, through which no pair is ever nearer than directly."""
+    if not any(periodic):
+        return points, None
+    shifted = points - lo
+    span = np.ptp(points, axis=0)
+    size = np.empty(len(lo))
+    for a, wrap in enumerate(periodic):
+        if wrap:
+            size[a] = hi[a] - lo[a]
+            shifted[:, a] = np.mod(shifted[:, a], size[a])
+            # mod may round a value just below the length up to it
+            shifted[shifted[:, a] >= size[a], a] = 0.0
+        else:
+            shifted[:, a] = points[:, a] - points[:, a].min()
+            size[a] = 3.0 * span[a] + 1.0
+    return shifted, size
+
+
 def nearest_distances(points, lo, hi, periodic):
     """Nearest-neighbour distance of every point (N x dim), minimum image along the periodic
     axes of the box [lo, hi)."""
     if len(points) < 2:
         return np.zeros(0)
-    if not any(periodic):
-        tree = cKDTree(points)
-    else:
-        shifted = points - lo
-        span = np.ptp(points, axis=0)
-        size = np.empty(len(lo))
-        for a, wrap in enumerate(periodic):
-            if wrap:
-                size[a] = hi[a] - lo[a]
-                shifted[:, a] = np.mod(shifted[:, a], size[a])
-                # mod may round a value just below the length up to it
-                shifted[shifted[:, a] >= size[a], a] = 0.0
-            else:
-                # an open axis inside a period longer than twice the extent: no pair
-                # is ever nearer through the wrap than directly
-                shifted[:, a] = points[:, a] - points[:, a].min()
-                size[a] = 3.0 * span[a] + 1.0
-        tree = cKDTree(shifted, boxsize=size)
-        points = shifted
-    dist, _ = tree.query(points, k=2)
+    points, size = periodic_frame(points, lo, hi, periodic)
+    dist, _ = cKDTree(points, boxsize=size).query(points, k=2)
     return dist[:, 1]
+
+
+def cubic_spline(r, h, dim):
+    """The cubic B-spline kernel W(r, h) (support 2 h) in dim dimensions."""
+    q = r / h
+    norm = {1: 2.0 / 3.0, 2: 10.0 / (7.0 * np.pi), 3: 1.0 / np.pi}[dim] / h**dim
+    return norm * np.where(q < 1.0, 1.0 - 1.5 * q**2 + 0.75 * q**3,
+                           np.where(q < 2.0, 0.25 * (2.0 - q)**3, 0.0))
+
+
+def volume_sums(snap, geo, periodic):
+    """sum_j (m_j / rho_j) W(r_ij, h_i) at every fluid particle i (the module docstring)."""
+    dim = geo["dimension"]
+    kind = snap["kind"]
+    level = snap.get("level")
+    level = np.zeros(len(kind), dtype=int) if level is None else np.asarray(level)
+    points, size = periodic_frame(np.asarray(snap["position"], dtype=float)[:, :dim],
+                                  geo["box_lo"][:dim], geo["box_hi"][:dim], periodic)
+    volume = np.asarray(snap["mass"], dtype=float) / np.asarray(snap["density"], dtype=float)
+    h = np.asarray(snap["smoothing_length"], dtype=float)
+    fluid = np.flatnonzero(kind == 0)
+    sums = np.zeros(len(fluid))
+    for lv in np.unique(level[fluid]):
+        mine = fluid[level[fluid] == lv]
+        others = np.flatnonzero((level == lv) & (kind <= 2))
+        pairs = cKDTree(points[mine], boxsize=size).sparse_distance_matrix(
+            cKDTree(points[others], boxsize=size), 2.0 * h[mine].max(), output_type="ndarray")
+        i, j, r = pairs["i"], pairs["j"], pairs["v"]
+        # (the ndarray output keeps the pairs at r = 0, each particle with itself among them)
+        w = cubic_spline(r, h[mine][i], dim) * volume[others][j]
+        sums[np.searchsorted(fluid, mine)] = np.bincount(i, weights=w, minlength=len(mine))
+    return sums
 
 
 def disorder(path):
     """The figures of one snapshot as a dict: count, mean_nn, cov_nn, min_pair, rho_min,
-    rho_max, rho_spread (std / mean of the density), dimension, periodic (per axis)."""
+    rho_max, rho_spread (std / mean of the density), volume_sum_mean and volume_sum_spread
+    (std / mean of the kernel sums of volumes), dimension, periodic (per axis)."""
     snap = load(path, check_format=False)
     geo = geometry(snap)
     dim = geo["dimension"]
@@ -87,10 +128,13 @@ def disorder(path):
         raise SnapshotError(f"{path}: fewer than two fluid particles, no distances to measure")
     d = nearest_distances(points, geo["box_lo"][:dim], geo["box_hi"][:dim], periodic)
     mean = float(d.mean())
+    sums = volume_sums(snap, geo, periodic)
     return {"path": path, "dimension": dim, "periodic": periodic, "count": int(len(points)),
             "mean_nn": mean, "cov_nn": float(d.std() / mean) if mean > 0 else float("nan"),
             "min_pair": float(d.min()), "rho_min": float(rho.min()),
-            "rho_max": float(rho.max()), "rho_spread": float(rho.std() / rho.mean())}
+            "rho_max": float(rho.max()), "rho_spread": float(rho.std() / rho.mean()),
+            "volume_sum_mean": float(sums.mean()),
+            "volume_sum_spread": float(sums.std() / sums.mean())}
 
 
 def report(stats):
@@ -102,7 +146,9 @@ def report(stats):
         f"  nearest-neighbour CoV    {stats['cov_nn']:.6g}",
         f"  minimum pair distance    {stats['min_pair']:.6g} m",
         f"  density min / max        {stats['rho_min']:.6g} / {stats['rho_max']:.6g} kg/m^3",
-        f"  density std / mean       {stats['rho_spread']:.6g}"])
+        f"  density std / mean       {stats['rho_spread']:.6g}",
+        f"  kernel sum of volumes    mean {stats['volume_sum_mean']:.6g}, "
+        f"std / mean {stats['volume_sum_spread']:.6g}"])
 
 
 def ratios(first, second):

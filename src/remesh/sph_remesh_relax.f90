@@ -24,6 +24,15 @@ module sph_remesh_relax
     implicit none
     private
     public :: relax_displacements, relax_list_t, RELAX_PASSES, RELAX_H_FACTOR, RELAX_TOLERANCE
+    public :: move_allowed_i
+
+    abstract interface
+        !> Whether a point may move to z (the caller's constraint: keep off solids).
+        logical function move_allowed_i(z)
+            import :: wp
+            real(wp), intent(in) :: z(3)
+        end function move_allowed_i
+    end interface
 
     !> Five passes of coefficient 0.6 leave the coarsened cylinder flows' sets as ten of 0.3
     !> did (nearest-distance mean and CoV within 0.02 and 0.004, mass CoV 5-8 %: offline
@@ -62,12 +71,24 @@ contains
     !> closer than before, stays (and so does that other one); the pushes of a clump's
     !> neighbours can otherwise squeeze two points together (0.28 new spacings on a coarsened
     !> cylinder flow whose selection kept 0.4).
-    subroutine relax_displacements(dim, n, ny, y, dx, d, kept, floor)
+    !> allowed: a move it refuses is not made, before the floor is checked (a refusal after
+    !> it let a pair's partner close in: 0.27 new spacings next to the cylinder).
+    !> pair_gap (in dx): two points that are each other's nearest, closer than pair_gap dx,
+    !> move together (both by their mean move), so that a clumped flow's pairs stay pairs
+    !> while the relaxation evens the volumes around them (refinement, sph_remesh_driver).
+    !> moves_with(k) (optional): the point 1..n that point k > n is a periodic image of (it
+    !> moves as that point does), 0 for one that does not move (a mirror): the floor holds
+    !> across a periodic face too (without it, two points on both sides of the face came
+    !> 0.37 new spacings apart: the refined L/50 cylinder flow at 6000 s).
+    subroutine relax_displacements(dim, n, ny, y, dx, d, kept, floor, allowed, pair_gap, &
+            moves_with)
         integer, intent(in) :: dim, n, ny
         real(wp), intent(in) :: y(:, :), dx
         real(wp), intent(out) :: d(:, :)
         type(relax_list_t), intent(inout), optional :: kept
-        real(wp), intent(in), optional :: floor
+        real(wp), intent(in), optional :: floor, pair_gap
+        procedure(move_allowed_i), optional :: allowed
+        integer, intent(in), optional :: moves_with(:)
         type(relax_list_t) :: own
         type(kernel_t) :: kernel
         real(wp) :: h, vol
@@ -99,6 +120,9 @@ contains
             real(wp), allocatable :: rx(:, :), rs(:), dw(:), s(:, :)
             ! pairs that the moves (at most RELAX_MAX_STEP dx each) could bring below floor
             integer, allocatable :: close_a(:), close_b(:), more(:)
+            ! each point's nearest partner and its distance (pair_gap)
+            integer, allocatable :: nearest(:)
+            real(wp), allocatable :: r_near(:)
             real(wp) :: r_watch
             integer :: a, b, p, m, first, n_close
             if (.not. holds_pairs(list)) then
@@ -115,6 +139,9 @@ contains
             n_close = 0
             allocate(close_a(max(n, 1)), close_b(max(n, 1)), s(3, max(ny, 1)))
             s = 0.0_wp
+            allocate(nearest(ny), r_near(ny))
+            nearest = 0
+            r_near = huge(1.0_wp)
             m = maxval(list%start(2:n + 1) - list%start(1:n))
             allocate(rx(max(m, 1), 3), rs(max(m, 1)), dw(max(m, 1)))
             do a = 1, n
@@ -126,6 +153,19 @@ contains
                     rx(p, 3) = on_z * (y(3, a) - y(3, list%index(first + p - 1)))
                     rs(p) = sqrt(rx(p, 1)**2 + rx(p, 2)**2 + rx(p, 3)**2)
                 end do
+                if (present(pair_gap)) then
+                    do p = 1, m
+                        b = list%index(first + p - 1)
+                        if (rs(p) < r_near(a)) then
+                            r_near(a) = rs(p)
+                            nearest(a) = b
+                        end if
+                        if (rs(p) < r_near(b)) then
+                            r_near(b) = rs(p)
+                            nearest(b) = a
+                        end if
+                    end do
+                end if
                 do p = 1, m
                     if (rs(p) >= r_watch) cycle
                     if (n_close == size(close_a)) then
@@ -163,6 +203,21 @@ contains
                     d(:, a) = d(:, a) * (RELAX_MAX_STEP * dx / step)
                 end if
             end do
+            if (present(pair_gap)) then
+                do a = 1, n
+                    b = nearest(a)
+                    if (b <= a .or. b > n) cycle
+                    if (nearest(b) /= a .or. r_near(a) >= pair_gap * dx) cycle
+                    f = 0.5_wp * (d(:, a) + d(:, b))
+                    d(:, a) = f
+                    d(:, b) = f
+                end do
+            end if
+            if (present(allowed)) then
+                do a = 1, n
+                    if (.not. allowed(y(:, a) + d(:, a))) d(:, a) = 0.0_wp
+                end do
+            end if
             if (present(floor)) call keep_floor(close_a(1:n_close), close_b(1:n_close), &
                 floor * dx)
         end subroutine pass
@@ -186,9 +241,9 @@ contains
         end subroutine halve
 
         !> Cancel the moves that bring a pair (of the pairs pa, pb that could come so close)
-        !> closer than r_floor and closer than it was, both points' moves (an image or mirror
-        !> does not move here); repeated until none is left, since a point that stays may be
-        !> approached by another.
+        !> closer than r_floor and closer than it was, both points' moves (an image's: its
+        !> point's, moves_with; a mirror does not move here); repeated until none is left,
+        !> since a point that stays may be approached by another.
         subroutine keep_floor(pa, pb, r_floor)
             integer, intent(in) :: pa(:), pb(:)
             real(wp), intent(in) :: r_floor
@@ -200,10 +255,15 @@ contains
                 changed = .false.
                 do p = 1, size(pa)
                     a = pa(p)
+                    ! the point that moves b (b itself, the point it is an image of, or none)
                     b = pb(p)
+                    if (b > n) then
+                        b = 0
+                        if (present(moves_with)) b = moves_with(pb(p))
+                    end if
                     db = 0.0_wp
-                    if (b <= n) db = d(:, b)
-                    before = y(:, a) - y(:, b)
+                    if (b > 0) db = d(:, b)
+                    before = y(:, a) - y(:, pb(p))
                     after = before + d(:, a) - db
                     before(dim + 1:) = 0.0_wp
                     after(dim + 1:) = 0.0_wp
@@ -213,7 +273,7 @@ contains
                         d(:, a) = 0.0_wp
                         changed = .true.
                     end if
-                    if (b <= n) then
+                    if (b > 0) then
                         if (any(d(:, b) /= 0.0_wp)) then
                             d(:, b) = 0.0_wp
                             changed = .true.

@@ -39,21 +39,24 @@ INPUT = """&domain
 """
 
 
-def write(path, pos, kind, rho):
+def write(path, pos, kind, rho, text=INPUT, volume=None, h=1.0):
+    """A snapshot of these particles; masses rho * volume (all 1 without volume)."""
     n = len(pos)
     with h5py.File(path, "w") as f:
         f.attrs["time"] = 0.0
         f.attrs["step"] = np.int64(0)
         f.attrs["dimension"] = np.int32(2)
-        f.attrs["input"] = INPUT
+        f.attrs["input"] = text
         f.attrs["format"] = "sphremesh-snapshot"
         f.attrs["format_version"] = np.int32(1)
         g = f.create_group("particles")
         g["position"] = np.asarray(pos, dtype=float)
         g["velocity"] = np.zeros((n, 3))
         g["density"] = np.asarray(rho, dtype=float)
-        for name in ("pressure", "mass", "smoothing_length", "energy"):
+        for name in ("pressure", "energy"):
             g[name] = np.ones(n)
+        g["mass"] = np.ones(n) if volume is None else np.asarray(rho, dtype=float) * volume
+        g["smoothing_length"] = np.full(n, h)
         g["id"] = np.arange(1, n + 1, dtype=np.int64)
         g["kind"] = np.asarray(kind, dtype=np.int32)
         g["level"] = np.zeros(n, dtype=np.int32)
@@ -113,6 +116,47 @@ class DisorderTest(unittest.TestCase):
         self.assertEqual(run.returncode, 1)
         self.assertIn("sph_disorder:", run.stderr)
         self.assertNotIn("Traceback", run.stderr)
+
+
+class VolumeSumTest(unittest.TestCase):
+    """The kernel sums of volumes on a periodic 10 x 10 lattice of spacing 1 (volumes 1,
+    h = 1.3): every sum is the lattice sum S of the cubic spline; with the site (4.5, 4.5)
+    taken out, its four nearest neighbours lack W(1, 1.3) and its four diagonal ones
+    W(sqrt 2, 1.3). A wall particle (kind 1) counts; a mirror (kind 3) does not."""
+
+    TEXT = INPUT.replace("'wall', 'wall'", "'periodic', 'periodic'").replace(
+        "4.0, 4.0", "10.0, 10.0")
+
+    def sums(self, pos, kind):
+        with tempfile.TemporaryDirectory() as tmp:
+            path = os.path.join(tmp, "lattice.h5")
+            write(path, pos, kind, [1000.0] * len(pos), text=self.TEXT, volume=1.0, h=1.3)
+            snap = sph_disorder.load(path, check_format=False)
+            geo = sph_disorder.geometry(snap)
+            return sph_disorder.volume_sums(snap, geo, [True, True]), \
+                sph_disorder.disorder(path)
+
+    def test_even_lattice_and_a_hole(self):
+        w = lambda r: sph_disorder.cubic_spline(np.asarray(r), 1.3, 2)  # noqa: E731
+        lattice = [[i + 0.5, j + 0.5, 0.0] for j in range(10) for i in range(10)]
+        # the lattice sum: offsets up to 2 h = 2.6 (|i|, |j| <= 2)
+        total = float(sum(w(math.hypot(i, j)) for i in range(-2, 3) for j in range(-2, 3)))
+        sums, stats = self.sums(lattice, [0] * 100)
+        self.assertTrue(np.allclose(sums, total, rtol=1e-12, atol=0.0))
+        self.assertLess(stats["volume_sum_spread"], 1e-12)
+        self.assertAlmostEqual(stats["volume_sum_mean"], total, places=12)
+        # the hole at (4.5, 4.5) = site 44, now a mirror (left out), and a wall particle on
+        # a far site instead of a fluid one (counted: its sums stay the lattice's)
+        kind = [0] * 100
+        kind[44] = 3
+        kind[0] = 1
+        sums, stats = self.sums(lattice, kind)
+        fluid = [k for k in range(100) if kind[k] == 0]
+        by_site = dict(zip(fluid, sums))
+        self.assertAlmostEqual(by_site[45], total - float(w(1.0)), places=12)
+        self.assertAlmostEqual(by_site[55], total - float(w(math.sqrt(2.0))), places=12)
+        self.assertAlmostEqual(by_site[1], total, places=12)
+        self.assertGreater(stats["volume_sum_spread"], 0.01)
 
 
 if __name__ == "__main__":
