@@ -131,11 +131,15 @@ module sph_remesh_driver
     real(wp), parameter :: WALL_GAP = 0.4_wp
     !> the relaxation squeezes no pair below this (in new spacings): issue 10's floor
     real(wp), parameter :: RELAX_FLOOR = 0.4_wp
-    !> a refined set's relaxation moves two particles that are each other's nearest, closer
-    !> than this (in new spacings), together: a clumped flow's pairs stay pairs (its mean
-    !> nearest distance half the flow's, issue 10; relaxed one by one, 0.532 of it on the
-    !> L/25 cylinder at 1500 s, with pairs kept 0.501). A lattice's nearest lie 0.9-1 apart.
-    real(wp), parameter :: REFINE_PAIR_GAP = 0.6_wp
+    !> a refined or coarsened set's relaxation moves two particles that are each other's
+    !> nearest, closer than this (in new spacings), together: a clumped flow's pairs stay
+    !> pairs, and the set keeps the flow's nearest distances (issue 10). Relaxed one by one,
+    !> the L/25 cylinder flow at 1500 s refined to a mean nearest distance 0.532 of the flow's
+    !> (0.495 with pairs kept), and the developed cylinder flows coarsened to nearest-distance
+    !> CoVs 0.73-0.80 of the flows' and a mean ratio of 2.23 at L/50, 6000 s (0.78-0.91 and
+    !> 1.97-2.06 with pairs kept; 0.6 kept too few at L/50: 2.14). The sets' kernel sums of
+    !> volumes are as even either way. A lattice's nearest lie 0.9-1 apart.
+    real(wp), parameter :: PAIR_GAP = 0.8_wp
 
     !> What a remesh did (global values, the same on every rank).
     type :: remesh_report_t
@@ -234,6 +238,10 @@ contains
         base = global_max_id(env, p%id, p%n_owned)
 
         call gather_positions(env, p, fluid, n, x, ids)
+        ! in id order, whatever the ranks' share: the selection and the refinement do not
+        ! depend on the order, but the relaxation's sums and its pairs' ties do (a coarsened
+        ! lattice next to a body kept other pairs on 2 ranks than on 1)
+        if (env%rank == 0) call into_id_order(x, ids, n)
         my_stat = 0
         n_new = 0
         allocate(xn(3, 0), idn(0))
@@ -251,7 +259,7 @@ contains
         end if
         ! the new set in id order: its particles then lie about in space order (the ids follow
         ! the keys, the keys the old ids), for the transfer and for the caller's id order
-        if (env%rank == 0 .and. my_stat == 0) call in_id_order()
+        if (env%rank == 0 .and. my_stat == 0) call into_id_order(xn, idn, n_new)
         if (refused()) return
         ! rank 0 relaxed the set: every rank reports its passes
         report%relax_passes = int(global_max(env, int(report%relax_passes, i8)))
@@ -301,7 +309,7 @@ contains
                 ! the even value on Morris' L/25 cylinder at 1500 s refined, whose continued
                 ! run then broke down at 5649 s (module header); a lattice's refinement is one
                 if (st == 0 .and. mode == REMESH_REFINE .and. (irregular > 0 .or. has_body())) &
-                    call relax_new_set(0.5_wp * dx, REFINE_PAIR_GAP)
+                    call relax_new_set(0.5_wp * dx, PAIR_GAP)
                 ! the keys travel in idn's place until fresh_ids turns them into ids
                 deallocate(idn)
                 allocate(idn(2 * n_new))
@@ -324,7 +332,7 @@ contains
                 ! spacings) with no body in it is its sublattice, whose volumes are even
                 ! already (next to a body the lattice's staircase leaves uneven ones)
                 if (st == 0 .and. (n_disordered > 0 .or. has_body())) &
-                    call relax_new_set(2.0_wp * dx)
+                    call relax_new_set(2.0_wp * dx, PAIR_GAP)
                 ! where a body lies within a spacing of a plane wall, place_plane_rows cannot
                 ! put the rows between them on the wall's gap without crossing the body's:
                 ! what is left closer than WALL_GAP to any solid goes (its mass is handed on;
@@ -546,13 +554,17 @@ contains
         end subroutine place_plane_rows
 
         !> Rank 0: the new set xn/idn in increasing id order.
-        subroutine in_id_order()
+        !> Rank 0: the points xs(:, 1:count) and their ids idv in id order.
+        subroutine into_id_order(xs, idv, count)
+            real(wp), intent(inout) :: xs(:, :)
+            integer(i8), intent(inout) :: idv(:)
+            integer, intent(in) :: count
             integer, allocatable :: order(:)
-            allocate(order(n_new))
-            call id_order(idn, n_new, order)
-            xn = xn(:, order)
-            idn = idn(order)
-        end subroutine in_id_order
+            allocate(order(count))
+            call id_order(idv, count, order)
+            xs(:, 1:count) = xs(:, order)
+            idv(1:count) = idv(order)
+        end subroutine into_id_order
 
         !> ids for the keys in idn (all ranks take part; rank 0 holds the keys).
         subroutine fresh_ids()
