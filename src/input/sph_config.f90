@@ -18,6 +18,7 @@ module sph_config
     use sph_health_input, only: health_input_t, read_health_input
     use sph_remesh_input, only: remesh_input_t, read_remesh_input
     use sph_body_input, only: body_input_t, read_body_inputs, check_body_wall_model
+    use sph_kernel, only: kernel_support_factor, kernel_default_h_factor, kernel_id_from_name
     use sph_refinement_input, only: refinement_input_t, region_input_t, &
         read_refinement_input, read_region_inputs, check_refinement
     implicit none
@@ -166,7 +167,7 @@ contains
         call read_refinement_input(grp(10), cfg%refinement)
         call read_region_inputs(regions, cfg%domain, cfg%bodies, cfg%regions)
         if (sum(grp%n_errors) == 0) call check_body_wall_model(bodies, cfg%bodies, &
-            cfg%numerics%wall_model)
+            cfg%numerics%wall_model, cfg%domain%dimension, kernel_support_at(cfg%domain%dx))
         if (sum(grp%n_errors) == 0) call check_moving_corners(grp(5), grp(4), cfg%domain, &
             cfg%numerics, cfg%fluid)
         if (sum(grp%n_errors) == 0) call check_analytic_channel(grp(1), cfg%run%analytic, &
@@ -196,6 +197,18 @@ contains
         if (sum(grp%n_errors) == 0 .and. sum(bodies%n_errors) == 0 .and. &
             sum(regions%n_errors) == 0) call check_refinement(grp(10), regions, grp(3), &
             grp(5), grp(9), cfg%refinement, cfg%regions, cfg%domain, cfg%numerics, cfg%remesh)
+    contains
+
+        !> The kernel's support at spacing dx (&numerics kernel, h_factor or its default).
+        real(wp) function kernel_support_at(dx) result(support)
+            real(wp), intent(in) :: dx
+            real(wp) :: h_factor
+            integer :: id
+            id = kernel_id_from_name(cfg%numerics%kernel)
+            h_factor = cfg%numerics%h_factor
+            if (h_factor <= 0.0_wp) h_factor = kernel_default_h_factor(id)
+            support = kernel_support_factor(id) * h_factor * dx
+        end function kernel_support_at
     end subroutine read_groups
 
     !> Every key the code declares (group, key, type, default, range, unit, meaning).
