@@ -12,7 +12,7 @@ submodule (sph_stepper) sph_stepper_remesh
     use sph_checkpoint, only: write_checkpoint, stored_spacing
     use sph_read_checks, only: check_read_particles
     use sph_remesh_driver, only: remesh_report_t, remesh_fluid, remesh_mode_code, &
-        remesh_spacing_factor, fluid_mass_momentum, restore_momentum, accurate_sum, &
+        remesh_spacing_factor, fluid_mass_momentum, restore_momentum, restore_energy, accurate_sum, &
         REMESH_NONE, REMESH_REFINE, REMESH_SAME
     use sph_rates, only: compute_summation_density
     use sph_particles, only: HALO_GHOST
@@ -202,7 +202,9 @@ contains
         where (fluid) sim%p%m(1:n) = sim%p%m(1:n) * (report%mass_before / mass)
         call restore_momentum(env, sim%p%dim, sim%p, fluid, report%momentum_before, &
             report%mass_before)
-        call fluid_mass_momentum(env, sim%p, report%mass_after, report%momentum_after)
+        call restore_energy(env, sim%p, fluid, report%energy_before)
+        call fluid_mass_momentum(env, sim%p, report%mass_after, report%momentum_after, &
+            report%energy_after)
         call refresh_ghosts(sim, env, HALO_GHOST)
         call build_mirrors(sim%phys, sim%solids, sim%p)
         call compute_summation_density(sim%phys, sim%p, sim%nl)
@@ -323,6 +325,11 @@ contains
         write(line, '(a,3es13.5,a,3es13.5,a,es10.3,a)') '  momentum ', report%momentum_before, &
             ' ->', report%momentum_after, ' kg m/s (|change| / |before| ', &
             norm2(report%momentum_after - report%momentum_before) / scale, ')'
+        call log_info(trim(line))
+        write(line, '(a,es23.15,a,es23.15,a,es10.3,a)') '  energy (sum m e) ', &
+            report%energy_before, ' -> ', report%energy_after, ' J (relative change ', &
+            abs(report%energy_after - report%energy_before) / max(abs(report%energy_before), &
+            tiny(1.0_wp)), ')'
         call log_info(trim(line))
         write(line, '(a,f10.3,a,f10.3,a,3(f9.3,a))') '  time ', sum(stages), ' s (', &
             1.0e6_wp * sum(stages) / real(max(report%n_before, report%n_after, 1_i8), wp), &
