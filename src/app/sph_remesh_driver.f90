@@ -308,6 +308,11 @@ contains
                     merge(0.0_wp, WALL_BAND, mode == REMESH_SAME), &
                     merge(2**dim * n, 0, mode == REMESH_REFINE))
                 report%n_irregular = irregular
+                ! where the construction's wall rules meet (a body close to a wall, a box's
+                ! edges) a point may lie closer than WALL_GAP new spacings to a solid (0.31
+                ! in a closed 3D box with a sphere): it goes, as in a coarsening, and its
+                ! share of the mass goes to its neighbours (the relaxation moves none there)
+                if (st == 0 .and. mode == REMESH_REFINE) call refined_off_solids(keys)
                 ! a clumped flow's construction (irregular cells, gaps filled) and the cells
                 ! next to a body's staircase leave uneven volumes: kernel sums 0.41-1.86 of
                 ! the even value on Morris' L/25 cylinder at 1500 s refined, whose continued
@@ -380,6 +385,23 @@ contains
             idn = idn(kept)
             n_new = n_kept
         end subroutine coarsen_step
+
+        !> Rank 0: drop the refined points xn and their keys closer than WALL_GAP new
+        !> spacings to a solid (to round-off: a plane wall's first row, half a spacing off,
+        !> stays).
+        subroutine refined_off_solids(keys)
+            integer(i8), allocatable, intent(inout) :: keys(:, :)
+            logical, allocatable :: clear(:)
+            integer :: a
+            allocate(clear(n_new))
+            do a = 1, n_new
+                clear(a) = clear_of_solids(xn(:, a), (1.0_wp - 1.0e-9_wp) * WALL_GAP * 0.5_wp * dx)
+            end do
+            if (all(clear)) return
+            xn = xn(:, pack([(a, a = 1, n_new)], clear))
+            keys = keys(:, pack([(a, a = 1, n_new)], clear))
+            n_new = size(xn, 2)
+        end subroutine refined_off_solids
 
         !> Rank 0: drop the candidates xn/idn closer than gap to any solid surface (with
         !> curved_only, to any solid that is not a plane).
