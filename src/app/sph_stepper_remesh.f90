@@ -4,7 +4,7 @@
 !> Split from sph_stepper so that each file holds one concern; the interfaces and their
 !> documentation are in sph_stepper.
 submodule (sph_stepper) sph_stepper_remesh
-    use sph_logger, only: log_warn_counted, log_warn, sci_text, fixed_text
+    use sph_logger, only: log_warn_counted, log_warn, sci_text, fixed_text, logger_is_root
     use sph_physics, only: physics_from_config
     use sph_walls, only: solids_from_config
     use sph_disorder_measure, only: nearest_distance_sums, disorder_from_sums
@@ -348,7 +348,9 @@ contains
         call log_info(trim(line))
         ! (a same-level remesh of a fluid at rest next to a small body: densities 0.4-6.5 %
         ! above rho0, and the fluid started to move)
-        if (report%mismatch_after > 0.01_wp) call log_warn_counted('summation_mismatch', &
+        ! (a global figure, the same on every rank: rank 0 says it)
+        if (report%mismatch_after > 0.01_wp .and. logger_is_root()) &
+            call log_warn_counted('summation_mismatch', &
             'remesh: with the total mass held, the new set''s kernel sums stay up to ' // &
             trim(adjustl(fixed_text(100.0_wp * report%mismatch_after, 8, 2))) // &
             ' % off the densities handed on, and the run goes on with them; ' // &
