@@ -193,11 +193,33 @@ contains
                 'mode', "'coarsen' needs every box length to be a whole multiple of 2 dx " // &
                 '(the coarse lattice must close periodically and sit symmetrically ' // &
                 'between walls)')
+            ! nor could a run go on where the coarse kernel's support exceeds half a periodic
+            ! side: every remesh was skipped with a warning, and --check said nothing
+            if (grp(9)%n_errors == 0) call check_coarse_support()
         end if
         if (sum(grp%n_errors) == 0 .and. sum(bodies%n_errors) == 0 .and. &
             sum(regions%n_errors) == 0) call check_refinement(grp(10), regions, grp(3), &
             grp(5), grp(9), cfg%refinement, cfg%regions, cfg%domain, cfg%numerics, cfg%remesh)
     contains
+
+        !> &remesh mode = 'coarsen': the kernel's support at 2 dx must not exceed half a
+        !> periodic side (as at set-up at dx).
+        subroutine check_coarse_support()
+            character(len=16) :: support, side
+            integer :: axis
+            do axis = 1, cfg%domain%dimension
+                if (.not. cfg%domain%is_periodic(axis)) cycle
+                if (cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis) >= &
+                    2.0_wp * kernel_support_at(2.0_wp * cfg%domain%dx)) cycle
+                write(support, '(es10.3)') kernel_support_at(2.0_wp * cfg%domain%dx)
+                write(side, '(es10.3)') cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis)
+                call grp(9)%error('mode', "'coarsen': the kernel support at 2 dx (" // &
+                    trim(adjustl(support)) // ' m) would exceed half the periodic box on ' // &
+                    'axis ' // achar(iachar('0') + axis) // ' (' // trim(adjustl(side)) // &
+                    " m), so no remesh could be made; use a larger box or mode = 'same'")
+                return
+            end do
+        end subroutine check_coarse_support
 
         !> The kernel's support at spacing dx (&numerics kernel, h_factor or its default).
         real(wp) function kernel_support_at(dx) result(support)
