@@ -17,7 +17,7 @@ module sph_solids
     private
     public :: solid_t, solids_t, solids_add_plane, solid_distance, solid_normal
     public :: solid_velocity, solid_reflect, deepest_solid, solids_add_body, facing_plane
-    public :: corner_planes, MAX_CORNER_COMBOS
+    public :: corner_planes, MAX_CORNER_COMBOS, next_image_distance
     public :: SOLID_PLANE, SOLID_CIRCLE, SOLID_SPHERE, SOLID_CYLINDER, SOLID_RECTANGLE
     public :: SOLID_BOX
 
@@ -129,23 +129,59 @@ contains
     pure real(wp) function solid_distance(solid, x)
         type(solid_t), intent(in) :: solid
         real(wp), intent(in) :: x(3)
-        real(wp) :: r(3), q(3)
         select case (solid%shape)
-        case (SOLID_CIRCLE, SOLID_SPHERE, SOLID_CYLINDER)
-            r = body_offset(solid, x)
-            solid_distance = norm2(r) - solid%radius
-        case (SOLID_RECTANGLE, SOLID_BOX)
-            r = body_offset(solid, x)
-            q = abs(r) - solid%half
-            if (any(q > 0.0_wp)) then
-                solid_distance = norm2(max(q, 0.0_wp))
-            else
-                solid_distance = maxval(q)
-            end if
-        case default   ! SOLID_PLANE
+        case (SOLID_PLANE)
             solid_distance = dot_product(solid%normal, x - solid%point)
+        case default
+            solid_distance = offset_distance(solid, body_offset(solid, x))
         end select
     end function solid_distance
+
+    !> A body's signed distance from a point at offset r from its centre (body_offset).
+    pure real(wp) function offset_distance(solid, r) result(d)
+        type(solid_t), intent(in) :: solid
+        real(wp), intent(in) :: r(3)
+        real(wp) :: q(3)
+        select case (solid%shape)
+        case (SOLID_RECTANGLE, SOLID_BOX)
+            q = abs(r) - solid%half
+            if (any(q > 0.0_wp)) then
+                d = norm2(max(q, 0.0_wp))
+            else
+                d = maxval(q)
+            end if
+        case default   ! circle, sphere, cylinder
+            d = norm2(r) - solid%radius
+        end select
+    end function offset_distance
+
+    !> Distance of x from the body's next periodic images: along each periodic axis the
+    !> image beyond x, on the other side from the nearest one (huge for a plane or a body
+    !> with no periodic axis).
+    !> Between a body and its own image the half-way point is where the two are equally far,
+    !> as between two bodies (the refinement's band map, sph_refine).
+    pure real(wp) function next_image_distance(solid, x) result(d)
+        type(solid_t), intent(in) :: solid
+        real(wp), intent(in) :: x(3)
+        real(wp) :: r(3), ri(3)
+        integer :: a
+        d = huge(1.0_wp)
+        if (solid%shape == SOLID_PLANE) return
+        r = body_offset(solid, x)
+        do a = 1, 3
+            if (.not. solid%period(a) > 0.0_wp) cycle
+            ! (along a cylinder's axis, or the third of a 2D body, it has no next image)
+            select case (solid%shape)
+            case (SOLID_CIRCLE, SOLID_RECTANGLE)
+                if (a == 3) cycle
+            case (SOLID_CYLINDER)
+                if (a == solid%axis) cycle
+            end select
+            ri = r
+            ri(a) = r(a) - sign(solid%period(a), r(a))
+            d = min(d, offset_distance(solid, ri))
+        end do
+    end function next_image_distance
 
     !> Unit normal into the fluid at the surface point nearest x (curved shapes use x). At a
     !> body's centre, where every direction is nearest, the first axis it spans is taken.

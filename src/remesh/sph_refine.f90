@@ -85,7 +85,8 @@
 !>  3. Band map (other solids: bodies, a plane that faces none). A new position at distance d1
 !>     from its nearest such solid is moved along that solid's normal to g(d1) = dx/4 + d1 (b
 !>     - dx/4) / b when d1 < b (d1 < 0 counts as 0), b = min(WALL_BAND dx_new, (d1 + d2) /
-!>     2), d2 the distance to the next solid: the row on the surface goes to half a NEW
+!>     2), d2 the distance to the next solid (or to the body's own next periodic image,
+!>     next_image_distance): the row on the surface goes to half a NEW
 !>     spacing, the rows behind it are compressed evenly by (b - dx/4) / b (1 - 1/80 for
 !>     WALL_BAND = 20 new spacings), beyond b nothing moves; b ends half-way to the next
 !>     solid, where the maps of both are the identity, so the map is continuous and monotone.
@@ -138,7 +139,7 @@ module sph_refine
     use sph_coarsen, only: id_hash
     use sph_key_sort, only: sort_by_keys
     use sph_solids, only: solids_t, solid_distance, solid_normal, solid_reflect, facing_plane, &
-        corner_planes, MAX_CORNER_COMBOS
+        corner_planes, MAX_CORNER_COMBOS, next_image_distance
     implicit none
     private
     public :: refine_positions, wall_map, EDGE_FACTOR, MIRROR_DEPTH, WALL_BAND, MIN_GAP
@@ -332,7 +333,13 @@ contains
                     s_1 = sz
                 end if
             end do
+            ! (a body's own next periodic image counts as a next solid: without it, in a box
+            ! of 10-20 spacings the bands of a body and its image overlapped, each moved its
+            ! points towards its own body, and a gap opened along the periodic faces, where
+            ! the nearest image changes: 12,000 irregular cells refining a 3D lattice of 968
+            ! around a sphere, CoV 0.20)
             d_2 = huge(1.0_wp)
+            if (s_1 > 0) d_2 = next_image_distance(solids%list(s_1), yz)
             do sz = 1, ns
                 if (sz /= s_1) d_2 = min(d_2, dist(sz))
             end do
