@@ -101,6 +101,7 @@ module sph_remesh_driver
     use sph_refine, only: refine_positions, WALL_BAND
     use sph_solids, only: solids_t, solid_distance, solid_reflect, facing_plane, corner_planes, &
         MAX_CORNER_COMBOS, SOLID_PLANE
+    use sph_cell_list, only: neighbour_list_t, build_neighbour_list
     use sph_remesh_relax, only: relax_displacements, relax_list_t, RELAX_PASSES, RELAX_H_FACTOR, &
         RELAX_TOLERANCE
     use sph_coarsen, only: coarsen_select
@@ -349,6 +350,10 @@ contains
                 ! spacings from it were kept, against the documented 0.4). The factor lets
                 ! the particles put on a gap's edge stay, to round-off.
                 if (st == 0) call keep_off_solids((1.0_wp - 1.0e-9_wp) * WALL_GAP * 2.0_wp * dx)
+                ! the rows put half a spacing off plane walls may come closer than the floor
+                ! to a particle kept next to them (0.395 new spacings in a closed 3D box)
+                if (st == 0) call drop_close_pairs((1.0_wp - 1.0e-9_wp) * RELAX_FLOOR * &
+                    2.0_wp * dx)
                 return
             case default
                 st = 1
@@ -402,6 +407,38 @@ contains
             keys = keys(:, pack([(a, a = 1, n_new)], clear))
             n_new = size(xn, 2)
         end subroutine refined_off_solids
+
+        !> Rank 0: of every pair of xn closer than `floor` (through the periodic faces too),
+        !> the particle with the larger id goes (its mass is handed on to the others).
+        subroutine drop_close_pairs(floor)
+            real(wp), intent(in) :: floor
+            real(wp), allocatable :: y(:, :)
+            integer, allocatable :: orig(:)
+            logical, allocatable :: keep(:)
+            type(neighbour_list_t) :: near
+            integer :: ny, a, k, b
+            if (n_new < 2) return
+            call with_images(dim, box_lo, box_hi, periodic, n_new, xn, floor, y, orig, ny)
+            call build_neighbour_list(y, ny, n_new, dim, floor, near)
+            allocate(keep(n_new))
+            keep = .true.
+            do a = 1, n_new
+                do k = near%start(a), near%start(a + 1) - 1
+                    b = orig(near%index(k))
+                    if (b == a .or. .not. keep(a) .or. .not. keep(b)) cycle
+                    if (sum((y(1:dim, a) - y(1:dim, near%index(k)))**2) >= floor**2) cycle
+                    if (idn(b) > idn(a)) then
+                        keep(b) = .false.
+                    else
+                        keep(a) = .false.
+                    end if
+                end do
+            end do
+            if (all(keep)) return
+            xn = xn(:, pack([(a, a = 1, n_new)], keep))
+            idn = idn(pack([(a, a = 1, n_new)], keep))
+            n_new = size(idn)
+        end subroutine drop_close_pairs
 
         !> Rank 0: drop the candidates xn/idn closer than gap to any solid surface (with
         !> curved_only, to any solid that is not a plane).
