@@ -242,10 +242,6 @@ contains
         base = global_max_id(env, p%id, p%n_owned)
 
         call gather_positions(env, p, fluid, n, x, ids)
-        ! in id order, whatever the ranks' share: the selection and the refinement do not
-        ! depend on the order, but the relaxation's sums and its pairs' ties do (a coarsened
-        ! lattice next to a body kept other pairs on 2 ranks than on 1)
-        if (env%rank == 0) call into_id_order(x, ids, n)
         my_stat = 0
         n_new = 0
         allocate(xn(3, 0), idn(0))
@@ -341,8 +337,14 @@ contains
                 ! a selection from a near-lattice (no particle whose rows sit off whole
                 ! spacings) with no body in it is its sublattice, whose volumes are even
                 ! already (next to a body the lattice's staircase leaves uneven ones)
-                if (st == 0 .and. (n_disordered > 0 .or. has_body())) &
+                ! the kept set in id order, whatever the ranks' share of the gathered one: the
+                ! selection does not depend on the order, but the relaxation's sums and its
+                ! pairs' ties do (a coarsened lattice next to a body kept other pairs on 2
+                ! ranks than on 1); a refined set comes in key order
+                if (st == 0 .and. (n_disordered > 0 .or. has_body())) then
+                    call into_id_order(xn, idn, n_new)
                     call relax_new_set(2.0_wp * dx, PAIR_GAP)
+                end if
                 ! where a body lies within a spacing of a plane wall, place_plane_rows cannot
                 ! put the rows between them on the wall's gap without crossing the body's:
                 ! what is left closer than WALL_GAP to any solid goes (its mass is handed on;
@@ -351,9 +353,10 @@ contains
                 ! the particles put on a gap's edge stay, to round-off.
                 if (st == 0) call keep_off_solids((1.0_wp - 1.0e-9_wp) * WALL_GAP * 2.0_wp * dx)
                 ! the rows put half a spacing off plane walls may come closer than the floor
-                ! to a particle kept next to them (0.395 new spacings in a closed 3D box)
-                if (st == 0) call drop_close_pairs((1.0_wp - 1.0e-9_wp) * RELAX_FLOOR * &
-                    2.0_wp * dx)
+                ! to a particle kept next to them (0.395 new spacings in a closed 3D box); a
+                ! near-lattice's sublattice has none (its pairs are a whole new spacing apart)
+                if (st == 0 .and. (n_disordered > 0 .or. has_body())) &
+                    call drop_close_pairs((1.0_wp - 1.0e-9_wp) * RELAX_FLOOR * 2.0_wp * dx)
                 return
             case default
                 st = 1
