@@ -28,8 +28,7 @@
 module sph_transition_driver
     use sph_kinds, only: wp, i8
     use sph_mpi_env, only: mpi_env_t, global_sum, global_max, exclusive_scan_i8
-    use sph_remesh_images, only: with_periodic_images
-    use sph_remesh_driver, only: with_mirrors
+    use sph_remesh_images, only: with_periodic_images, with_mirrors
     use sph_refine, only: MIRROR_DEPTH
     use sph_errors, only: fatal_collective
     use sph_config, only: config_t
