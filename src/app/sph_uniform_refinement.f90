@@ -4,6 +4,20 @@
 !> keeps the transition zones of a running multi-resolution state, so that each file holds
 !> one concern (doc/multiresolution.md, "From a uniform run to a multi-resolution one").
 submodule (sph_transition_driver) sph_uniform_refinement
+    ! (the modules whose procedures it calls are named here too, importing nothing: the
+    ! parent's use makes their entities visible, but the build recompiles this file only
+    ! for the modules it names. Through the parent alone, whose own interface stayed the
+    ! same, a stale object crashed in relax_displacements after that gained arguments.)
+    use sph_mpi_env, only:
+    use sph_remesh_images, only:
+    use sph_errors, only:
+    use sph_particles, only:
+    use sph_solids, only:
+    use sph_remesh_relax, only:
+    use sph_domain, only:
+    use sph_initial, only:
+    use sph_global_ids, only:
+    use sph_transition, only:
     implicit none
 
 contains
