@@ -158,7 +158,7 @@ module sph_remesh_driver
         !> of the mass fallbacks, old particles with no new one in their support (each handed
         !> to its nearest, the transfer's ghosts then taken at the full reach)
         integer :: n_isolated = 0
-        integer :: relax_passes = 0                  !< relaxation passes made (coarsen, same)
+        integer :: relax_passes = 0                  !< relaxation passes made
         !> summation density (set by the caller, sph_stepper_remesh): passes of the fluid
         !> masses' adjustment, and the largest |kernel sum / handed-on density - 1| of a fluid
         !> particle before and after it (mass_passes < 0: no adjustment)
@@ -402,10 +402,7 @@ contains
             integer(i8), allocatable, intent(inout) :: keys(:, :)
             logical, allocatable :: clear(:)
             integer :: a
-            allocate(clear(n_new))
-            do a = 1, n_new
-                clear(a) = clear_of_solids(xn(:, a), (1.0_wp - 1.0e-9_wp) * WALL_GAP * 0.5_wp * dx)
-            end do
+            clear = clear_mask((1.0_wp - 1.0e-9_wp) * WALL_GAP * 0.5_wp * dx)
             if (all(clear)) return
             xn = xn(:, pack([(a, a = 1, n_new)], clear))
             keys = keys(:, pack([(a, a = 1, n_new)], clear))
@@ -450,24 +447,35 @@ contains
             real(wp), intent(in) :: gap
             logical, intent(in), optional :: curved_only
             logical, allocatable :: clear(:)
-            logical :: planes
             integer :: a
-            if (.not. present(solids)) return
-            if (.not. allocated(solids%list)) return
-            ! no solid that applies (a periodic box; only planes with curved_only): no pass and
-            ! no copy of the set
-            planes = .true.
-            if (present(curved_only)) planes = .not. curved_only
-            if (.not. planes .and. all(solids%list(:)%shape == SOLID_PLANE)) return
-            if (size(solids%list) == 0) return
-            allocate(clear(n_new))
-            do a = 1, n_new
-                clear(a) = clear_of_solids(xn(:, a), gap, curved_only)
-            end do
+            clear = clear_mask(gap, curved_only)
+            if (all(clear)) return
             xn = xn(:, pack([(a, a = 1, n_new)], clear))
             idn = idn(pack([(a, a = 1, n_new)], clear))
             n_new = size(idn)
         end subroutine keep_off_solids
+
+        !> Rank 0: whether each point of xn is at least gap from every solid surface (with
+        !> curved_only, from every solid that is not a plane); all true, with no pass over
+        !> the set, when no solid applies (a periodic box; only planes with curved_only).
+        function clear_mask(gap, curved_only) result(clear)
+            real(wp), intent(in) :: gap
+            logical, intent(in), optional :: curved_only
+            logical, allocatable :: clear(:)
+            logical :: planes
+            integer :: a
+            allocate(clear(n_new))
+            clear = .true.
+            if (.not. present(solids)) return
+            if (.not. allocated(solids%list)) return
+            if (size(solids%list) == 0) return
+            planes = .true.
+            if (present(curved_only)) planes = .not. curved_only
+            if (.not. planes .and. all(solids%list(:)%shape == SOLID_PLANE)) return
+            do a = 1, n_new
+                clear(a) = clear_of_solids(xn(:, a), gap, curved_only)
+            end do
+        end function clear_mask
 
         !> Rank 0: even out the volumes of the selected set xn of spacing sp (sph_remesh_relax),
         !> its periodic images and mirrors across the solids pushing; a move that would bring a

@@ -139,9 +139,11 @@ contains
             n_close = 0
             allocate(close_a(max(n, 1)), close_b(max(n, 1)), s(3, max(ny, 1)))
             s = 0.0_wp
-            allocate(nearest(ny), r_near(ny))
-            nearest = 0
-            r_near = huge(1.0_wp)
+            if (present(pair_gap)) then
+                allocate(nearest(ny), r_near(ny))
+                nearest = 0
+                r_near = huge(1.0_wp)
+            end if
             m = maxval(list%start(2:n + 1) - list%start(1:n))
             allocate(rx(max(m, 1), 3), rs(max(m, 1)), dw(max(m, 1)))
             do a = 1, n
