@@ -159,8 +159,8 @@ module sph_remesh_driver
         !> to its nearest, the transfer's ghosts then taken at the full reach)
         integer :: n_isolated = 0
         integer :: relax_passes = 0                  !< relaxation passes made
-        !> summation density (set by the caller, sph_stepper_remesh): passes of the fluid
-        !> masses' adjustment, and the largest |kernel sum / handed-on density - 1| of a fluid
+        !> set by the caller (sph_stepper_remesh's consistent_masses): passes of the fluid
+        !> masses' adjustment to the kernel sums, and the largest |kernel sum / handed-on density - 1| of a fluid
         !> particle before and after it (mass_passes < 0: no adjustment)
         integer :: mass_passes = -1
         real(wp) :: mismatch_before = 0.0_wp, mismatch_after = 0.0_wp
