@@ -196,23 +196,68 @@ contains
         end if
     end subroutine wall_depths
 
+    !> The longest neighbour list of an owned particle (the size of the partner scratch).
+    pure integer function longest_list(p, nl) result(m)
+        type(particles_t), intent(in) :: p
+        type(neighbour_list_t), intent(in) :: nl
+        m = 0
+        if (p%n_owned > 0) m = maxval(nl%start(2:p%n_owned + 1) - nl%start(1:p%n_owned))
+    end function longest_list
+
+    !> The partners of owned particle i that its density takes (all but repulsive-only
+    !> walls) within the kernel's support: m of them, at distances r(1:m), indices
+    !> partner(1:m), in the list's order. r and partner hold longest_list entries.
+    pure subroutine support_partners(phys, p, nl, i, m, r, partner)
+        type(physics_t), intent(in) :: phys
+        type(particles_t), intent(in) :: p
+        type(neighbour_list_t), intent(in) :: nl
+        integer, intent(in) :: i
+        integer, intent(out) :: m
+        real(wp), intent(inout) :: r(:)
+        integer, intent(inout) :: partner(:)
+        integer :: k, j
+        real(wp) :: d(3), r2, support2
+        support2 = phys%kernel%support**2
+        m = 0
+        do k = nl%start(i), nl%start(i + 1) - 1
+            j = nl%index(k)
+            if (repulsive_only(phys, p%kind(j))) cycle
+            d(1) = p%x(1, i) - p%x(1, j)
+            d(2) = p%x(2, i) - p%x(2, j)
+            d(3) = p%x(3, i) - p%x(3, j)
+            r2 = d(1)**2 + d(2)**2 + d(3)**2
+            if (r2 >= support2) cycle
+            m = m + 1
+            r(m) = sqrt(r2)
+            partner(m) = j
+        end do
+    end subroutine support_partners
+
     !> rho_i = sum_j m_j W_ij (self included) for owned fluid particles; walls keep theirs.
+    !> The partners within the support first, then W of all of them in one kernel call, as in
+    !> shepard_density (one call per pair, through the kernel's select, took 0.11 s for 4e5
+    !> particles in 2D, two thirds of a time step of them; a remesh makes up to 9 of these).
     subroutine compute_summation_density(phys, p, nl, level)
         type(physics_t), intent(in) :: phys
         type(particles_t), intent(inout) :: p
         type(neighbour_list_t), intent(in) :: nl
         integer, intent(in), optional :: level
-        integer :: i, k, j
-        real(wp) :: s, d(3)
+        integer :: i, k, m
+        real(wp) :: s, w0
+        real(wp), allocatable :: r(:), w(:)
+        integer, allocatable :: partner(:)
+        w0 = phys%kernel%w(0.0_wp)
+        m = longest_list(p, nl)
+        allocate(r(m), w(m), partner(m))
         do i = 1, p%n_owned
             if (.not. moves_with_flow(p%kind(i))) cycle
             if (other_level(p, i, level)) cycle
-            s = p%m(i) * phys%kernel%w(0.0_wp)
-            do k = nl%start(i), nl%start(i + 1) - 1
-                j = nl%index(k)
-                if (repulsive_only(phys, p%kind(j))) cycle
-                d = p%x(:, i) - p%x(:, j)
-                s = s + p%m(j) * phys%kernel%w(norm2(d))
+            call support_partners(phys, p, nl, i, m, r, partner)
+            call phys%kernel%w_many(r(1:m), w(1:m))
+            ! (summed in the list's order, as before)
+            s = p%m(i) * w0
+            do k = 1, m
+                s = s + p%m(partner(k)) * w(k)
             end do
             p%rho(i) = s
         end do
@@ -231,14 +276,13 @@ contains
         type(neighbour_list_t), intent(in) :: nl
         integer, intent(in), optional :: level
         real(wp), intent(inout), optional :: also(:)
-        integer :: i, k, j, n, m
-        real(wp) :: w0, num, den, d(3), r2, support2
+        integer :: i, m
+        real(wp) :: w0, num, den
         real(wp), allocatable :: r(:), w(:), mass(:), volume(:)
+        integer, allocatable :: partner(:)
         w0 = phys%kernel%w(0.0_wp)
-        support2 = phys%kernel%support**2
-        n = 0
-        if (p%n_owned > 0) n = maxval(nl%start(2:p%n_owned + 1) - nl%start(1:p%n_owned))
-        allocate(r(n), w(n), mass(n), volume(n))
+        m = longest_list(p, nl)
+        allocate(r(m), w(m), mass(m), volume(m), partner(m))
         ! the new densities in a kept array (no fresh pages at every step)
         if (allocated(kept_scratch%filtered)) then
             if (size(kept_scratch%filtered) < p%n_owned) deallocate(kept_scratch%filtered)
@@ -250,21 +294,9 @@ contains
                 filtered(i) = p%rho(i)
                 if (p%kind(i) /= KIND_FLUID) cycle
                 if (other_level(p, i, level)) cycle
-                ! the partners within the support, then W of all of them in one kernel call
-                m = 0
-                do k = nl%start(i), nl%start(i + 1) - 1
-                    j = nl%index(k)
-                    if (repulsive_only(phys, p%kind(j))) cycle
-                    d(1) = p%x(1, i) - p%x(1, j)
-                    d(2) = p%x(2, i) - p%x(2, j)
-                    d(3) = p%x(3, i) - p%x(3, j)
-                    r2 = d(1)**2 + d(2)**2 + d(3)**2
-                    if (r2 >= support2) cycle
-                    m = m + 1
-                    r(m) = sqrt(r2)
-                    mass(m) = p%m(j)
-                    volume(m) = p%m(j) / p%rho(j)
-                end do
+                call support_partners(phys, p, nl, i, m, r, partner)
+                mass(1:m) = p%m(partner(1:m))
+                volume(1:m) = p%m(partner(1:m)) / p%rho(partner(1:m))
                 call phys%kernel%w_many(r(1:m), w(1:m))
                 num = p%m(i) * w0 + sum(mass(1:m) * w(1:m))
                 den = p%m(i) / p%rho(i) * w0 + sum(volume(1:m) * w(1:m))
