@@ -56,7 +56,12 @@
 !>     span = 1 + the largest id, c the solid's number; the construction runs on the set and
 !>     its mirrors, so the cells that straddle a surface (a particle, its mirror and their
 !>     neighbours) get their midpoints and centres, ON the surface (d = 0 for a plane: a new
-!>     row at the wall, as dense as the others). What lies deeper than dx/4 inside a solid
+!>     row at the wall, as dense as the others). A particle and its own mirror are an edge
+!>     when closer than MIRROR_EDGE = 2 dx (other pairs: EDGE_FACTOR dx): a developed flow
+!>     keeps its first row 0.25-1 dx off a body, and with EDGE_FACTOR alone only the
+!>     particles within 0.6 dx put their midpoints on the surface row (Morris' L/25 cylinder
+!>     at 6000 s refined to 44 particles within one new spacing of the cylinder where the
+!>     run made at L/50 holds 66; now 66). What lies deeper than dx/4 inside a solid
 !>     (the mirrors' own rows, at <= -dx/2) is dropped. Next to a corner of paired planes
 !>     (rule 2) a particle is also mirrored across two (in 3D three) of them that meet at
 !>     right angles (codes above the solids' numbers), so that the corner's cell gets its
@@ -149,6 +154,11 @@ module sph_refine
     !> wall rule (see the header): particles within MIRROR_DEPTH old spacings of a surface are
     !> mirrored; new positions within WALL_BAND new spacings of it are moved
     real(wp), parameter :: MIRROR_DEPTH = 2.0_wp
+    !> a particle and its own mirror across one surface are an edge when closer than this
+    !> (in old spacings; others EDGE_FACTOR): a developed flow's first row lies 0.25-1 old
+    !> spacings off a body, and only the particles within EDGE_FACTOR / 2 of it put their
+    !> midpoints on the surface row (header, rule 1)
+    real(wp), parameter :: MIRROR_EDGE = 2.0_wp
     real(wp), parameter :: WALL_BAND = 20.0_wp
     !> smallest distance (in new spacings) a constructed or moved point keeps from the points
     !> kept before it (thinning, see the header)
@@ -204,7 +214,8 @@ contains
         integer :: combos(3, MAX_CORNER_COMBOS)
         real(wp) :: org(3), d, band, wb, y(3)
         integer(i8) :: span
-        integer :: na, a, s, c, k, ns, st, n_codes, n_combos
+        integer :: na, a, s, c, k, ns, st, n_codes, n_combos, n_mirror_edges
+        integer, allocatable :: mirror_edges(:, :)
         logical :: pairs_on
 
         st = 0
@@ -246,11 +257,14 @@ contains
             xa(:, 1:n) = x(:, 1:n)
             ida(1:n) = ids(1:n)
             na = n
+            allocate(mirror_edges(2, n))
+            n_mirror_edges = 0
             do s = 1, ns
                 do a = 1, n
                     d = solid_distance(solids%list(s), x(:, a) + org)
                     if (d < 0.0_wp .or. d >= MIRROR_DEPTH * dx) cycle
                     call add_mirror(solid_reflect(solids%list(s), x(:, a) + org), s, a)
+                    if (2.0_wp * d < MIRROR_EDGE * dx) call add_mirror_edge(a, na)
                 end do
             end do
             ! the corners of paired planes: mirrored across two (and in 3D three) of them at
@@ -274,7 +288,7 @@ contains
                 end do
             end if
             call construct_positions(dim, na, xa, ida, dx, n_new, x_new, key, st, errmsg, box, &
-                n_irregular)
+                n_irregular, mirror_edges(:, 1:n_mirror_edges))
             if (st == 0) then
                 ! drop what lies inside a solid (and the dropped rows of paired planes), shift
                 ! between paired planes, move the rest of the wall band (header)
@@ -406,6 +420,19 @@ contains
             xa(dim + 1:, na) = 0.0_wp
             ida(na) = int(c, i8) * span + ids(a_orig)
         end subroutine add_mirror
+
+        !> Particle a and its mirror xa(:, k) form an edge (MIRROR_EDGE).
+        subroutine add_mirror_edge(a_orig, k)
+            integer, intent(in) :: a_orig, k
+            integer, allocatable :: more(:, :)
+            if (n_mirror_edges == size(mirror_edges, 2)) then
+                allocate(more(2, 2 * n_mirror_edges + 1))
+                more(:, 1:n_mirror_edges) = mirror_edges(:, 1:n_mirror_edges)
+                call move_alloc(more, mirror_edges)
+            end if
+            n_mirror_edges = n_mirror_edges + 1
+            mirror_edges(:, n_mirror_edges) = [a_orig, k]
+        end subroutine add_mirror_edge
 
         !> The points in key order: the caller's fresh ids follow the keys (sph_global_ids),
         !> so its sorts of the keys and then of the ids find them in order (one pass each
@@ -803,7 +830,7 @@ contains
     end function pair_map
 
     subroutine construct_positions(dim, n, x, ids, dx, n_new, x_new, key, stat, errmsg, box, &
-            n_irregular)
+            n_irregular, extra_edges)
         integer, intent(in) :: dim, n
         real(wp), intent(in) :: x(:, :), dx
         integer(i8), intent(in) :: ids(:)
@@ -814,6 +841,9 @@ contains
         character(len=*), intent(out), optional :: errmsg
         real(wp), intent(in), optional :: box(3)
         integer, intent(out), optional :: n_irregular
+        !> pairs (indices into x) that are edges whatever their distance (besides those closer
+        !> than EDGE_FACTOR dx): a particle and its mirror (refine_positions)
+        integer, intent(in), optional :: extra_edges(:, :)
         real(wp) :: rc, bx(3)
         logical :: periodic
         integer, allocatable :: astart(:), adj(:), npart(:), part(:, :)
@@ -942,14 +972,43 @@ contains
             integer, allocatable :: orig(:)
             type(neighbour_list_t) :: nl
             integer :: i, m, t, ntot, j
+            integer, allocatable :: estart(:), eother(:)
+            integer :: ne, e
             call with_periodic_images(dim, n, x, periodic, bx, rc, xa, orig, ntot)
             call build_neighbour_list(xa, ntot, n, dim, rc, nl, reach=2)
-            allocate(astart(n + 1), adj(nl%n_pairs))
+            ! the extra edges of each point, both ways (CSR)
+            ne = 0
+            if (present(extra_edges)) ne = size(extra_edges, 2)
+            allocate(estart(n + 2), eother(2 * ne))
+            estart = 0
+            do e = 1, ne
+                estart(extra_edges(1, e) + 2) = estart(extra_edges(1, e) + 2) + 1
+                estart(extra_edges(2, e) + 2) = estart(extra_edges(2, e) + 2) + 1
+            end do
+            estart(1) = 1
+            estart(2) = 1
+            do i = 3, n + 2
+                estart(i) = estart(i) + estart(i - 1)
+            end do
+            do e = 1, ne
+                eother(estart(extra_edges(1, e) + 1)) = extra_edges(2, e)
+                estart(extra_edges(1, e) + 1) = estart(extra_edges(1, e) + 1) + 1
+                eother(estart(extra_edges(2, e) + 1)) = extra_edges(1, e)
+                estart(extra_edges(2, e) + 1) = estart(extra_edges(2, e) + 1) + 1
+            end do
+            ! (estart(i) now starts the edges of i)
+            allocate(astart(n + 1), adj(nl%n_pairs + 2 * ne))
             m = 0
             do i = 1, n
                 astart(i) = m + 1
                 do t = nl%start(i), nl%start(i + 1) - 1
                     j = orig(nl%index(t))
+                    if (j == i .or. any(adj(astart(i):m) == j)) cycle
+                    m = m + 1
+                    adj(m) = j
+                end do
+                do t = estart(i), estart(i + 1) - 1
+                    j = eother(t)
                     if (j == i .or. any(adj(astart(i):m) == j)) cycle
                     m = m + 1
                     adj(m) = j
