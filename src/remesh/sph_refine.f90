@@ -102,9 +102,10 @@
 !>     clumps and, where d < 0 collapses onto dx/4, duplicates; the moved points (old ones
 !>     included; a uniform shift does not count as a move) are thinned like the constructed
 !>     ones. Nothing is dropped next to a plane wall (all pairs >= 0.97 dx_new there).
-!>     Morris' cylinder lattice (t = 0): L/50 2168 -> 8611 (3.97 N), minimum pair 0.975
-!>     dx_new; L/25 528 -> 2067 (3.91 N), 0.725 dx_new; the particles left where clumps were
-!>     thinned carry up to twice the median mass.
+!>     Morris' cylinder lattice (t = 0; scripts/validate's remesh_disorder, with the mirror
+!>     edges of rule 1): L/50 2184 -> 8775 (4.02 N), minimum pair 0.51 dx_new; L/25 544 ->
+!>     2177 (4.00 N), 0.53 dx_new; the particles left where clumps were thinned carry up to
+!>     twice the median mass.
 !> Result: first row at dx/4 = dx_new/2 from each surface (exactly for a plane; for
 !> a curved surface the mirrored cells are centred on it to O(dx^2 / R)), no gap, nothing
 !> inside; between paired planes 2^dim N (the lattice where the old set is one); next to a
@@ -130,8 +131,9 @@
 !> 0.495-0.51 with CoV within 15 % of the flow's at 1500 and 6000 s, L/25 and L/50.)
 !> Nothing changes where the
 !> construction is at most FILL_SLACK = 1 % short of n_target (lattices: Morris' L/50 cell at
-!> t = 0 has 3.97 N, its irregular cells next to the cylinder having no centre; the developed
-!> Poiseuille flow); the cylinder at 1500 s gets 4 N, minimum pair 0.4 new spacings.
+!> t = 0 had 3.97 N before the mirror edges of rule 1, its irregular cells next to the
+!> cylinder having no centre; the developed Poiseuille flow); the cylinder at 1500 s gets
+!> 4 N, minimum pair 0.4 new spacings.
 !>
 !> Periodic: with box (lengths of the axes, domain [0, box)) neighbours are searched through
 !> periodic images and new positions wrapped into the box; the box must exceed 4 EDGE_FACTOR
