@@ -1028,28 +1028,32 @@ contains
         end do
     end subroutine restore_momentum
 
-    !> Scale the specific energies e of the particles sel of p (every rank's share) so that
-    !> their sum m e is `energy` again, after a change of their masses that did not follow
-    !> e (the mirrors' share, the summation density's masses). Nothing when either total is
-    !> zero or they differ in sign (no scale keeps e's sign then).
+    !> Shift the specific energies e of the particles sel of p (every rank's share) by one
+    !> uniform amount so that their sum m e is `energy` again, after a change of their masses
+    !> that did not follow e (the mirrors' share, the kernel sums' masses): as momentum is
+    !> restored by one uniform velocity. (A uniform factor, energy / sum m e, as before, was
+    !> ill-conditioned where e has both signs: a same-level remesh of a flow with e = sin(2 pi
+    !> x / L) + 0.01 turned sum m e from 0.110 to -2.05 J, the factor being negative and so
+    !> not applied, and where applied it scaled every e by 2.6, 6.5 or 1e-14.)
     subroutine restore_energy(env, p, sel, energy)
         type(mpi_env_t), intent(in) :: env
         type(particles_t), intent(inout) :: p
         logical, intent(in) :: sel(:)
         real(wp), intent(in) :: energy
-        real(wp) :: total, lost, scale
+        real(wp) :: total(2), lost(2), shift
         integer :: i
         total = 0.0_wp
         lost = 0.0_wp
         do i = 1, size(sel)
-            if (sel(i)) call accurate_add(total, lost, p%m(i) * p%e(i))
+            if (.not. sel(i)) cycle
+            call accurate_add(total(1), lost(1), p%m(i) * p%e(i))
+            call accurate_add(total(2), lost(2), p%m(i))
         end do
         total = global_sum(env, total + lost)
-        if (total == 0.0_wp .or. energy == 0.0_wp) return
-        scale = energy / total
-        if (scale <= 0.0_wp) return
+        if (total(2) <= 0.0_wp) return
+        shift = (energy - total(1)) / total(2)
         do i = 1, size(sel)
-            if (sel(i)) p%e(i) = p%e(i) * scale
+            if (sel(i)) p%e(i) = p%e(i) + shift
         end do
     end subroutine restore_energy
 end module sph_remesh_driver
