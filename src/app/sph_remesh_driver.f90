@@ -441,7 +441,7 @@ contains
             if (st /= 0) return
             if (n_kept > 0) call append_old(kept_old)
             ! the kept rows stay where the flow had them (relaxed, their mirrors pushed them
-            ! off: 3 of the 25 within 0.75 spacings of the rectangle stayed there)
+            ! off: 8 particles within 0.75 spacings of the rectangle after it, 21 pinned)
             call relax_new_set(dx, pinned=idn(1:n_new) <= base)
             ! (a pinned particle's partner may have moved closer than the relaxation's floor,
             ! which assumes both move)
