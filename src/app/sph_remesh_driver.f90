@@ -163,8 +163,8 @@ module sph_remesh_driver
         integer :: n_isolated = 0
         integer :: relax_passes = 0                  !< relaxation passes made
         !> set by the caller (sph_stepper_remesh's consistent_masses): passes of the fluid
-        !> masses' adjustment to the kernel sums, and the largest |kernel sum / handed-on density - 1| of a fluid
-        !> particle before and after it (mass_passes < 0: no adjustment)
+        !> masses' adjustment to the kernel sums, and the largest |kernel sum / handed-on
+        !> density - 1| of a fluid particle before and after it (mass_passes < 0: none)
         integer :: mass_passes = -1
         real(wp) :: mismatch_before = 0.0_wp, mismatch_after = 0.0_wp
     end type remesh_report_t
@@ -399,13 +399,14 @@ contains
 
         !> Rank 0, same-level remeshing: the refined set xn/idn (fresh ids) coarsened back to
         !> the fluid's count, but within SAME_LAYER spacings of a solid the old particles
-        !> stay (not closer than WALL_GAP; their ids kept, older than every fresh one): the rows a developed flow holds
-        !> next to its walls and bodies are what its wall model made, and the refined set,
-        !> which drops its surface rows, left them half empty. A fresh point closer than
-        !> RELAX_FLOOR to a kept one goes (drop_close_pairs: the larger id); then the set is
-        !> relaxed. (Measured on a channel with a rectangle whose gap to the wall is 1.5
-        !> spacings: 9 particles within 0.75 spacings of the rectangle where the developed
-        !> flow had 25, and the flow ran 6-9 % faster for 3000 s.)
+        !> stay (not closer than WALL_GAP; their ids kept, older than every fresh one): the
+        !> rows a developed flow holds next to its walls and bodies are what its wall model
+        !> made, and the refined set, which drops its surface rows, left them half empty. A
+        !> fresh point closer than RELAX_FLOOR to a kept one goes (drop_close_pairs: the
+        !> larger id); then the set is relaxed, the kept ones pinned. (Measured on a channel
+        !> with a rectangle whose gap to the wall is 1.5 spacings: 9 particles within 0.75
+        !> spacings of the rectangle where the developed flow had 25, and the flow ran 6-9 %
+        !> faster for 3000 s; now 21, and 0-6 %, doc/validation.md.)
         subroutine same_level_step(st, msg)
             integer, intent(out) :: st
             character(len=:), allocatable, intent(inout) :: msg

@@ -189,8 +189,9 @@ contains
     !> their ratios agree to MASS_TOLERANCE (a common factor goes with the total mass); then
     !> scaled back to the total mass before the remesh, the momentum restored by one uniform
     !> velocity correction (as sph_remesh_driver does) and the energy sum m e by one uniform
-    !> shift of e (restore_energy). A summation run goes on with the kernel sums as densities, a continuity run with
-    !> the handed-on ones (its pressure field). The report takes the new totals and the
+    !> shift of e (restore_energy). A summation run goes on with the kernel sums as
+    !> densities, a continuity run with the handed-on ones (its pressure field). The report
+    !> takes the new totals and the
     !> largest mismatch before and after. Measured on that cavity: largest mismatch 0.66 ->
     !> 0.10, root mean square 0.093 -> 0.012 in 8 passes; the continued run's densities over
     !> 0.003 s spanned 938..1077 kg/m^3, the run made at L/100 from the start 953..1049 over
