@@ -412,6 +412,8 @@ contains
             character(len=:), allocatable, intent(inout) :: msg
             logical, allocatable :: near(:)
             integer, allocatable :: kept_old(:)
+            real(wp), allocatable :: refined_x(:, :), kept_x(:, :)
+            integer(i8), allocatable :: refined_id(:), kept_id(:)
             integer :: a, n_kept
             st = 0
             allocate(near(n))
@@ -427,35 +429,42 @@ contains
                 end if
             end if
             kept_old = pack([(a, a = 1, n)], near)
-            n_kept = size(kept_old)
-            if (n_kept > 0) then
-                ! the refined points in the layer, and those closer than the floor to a kept
-                ! particle (before the selection, so that it makes the count)
+            n_kept = 0
+            if (size(kept_old) > 0) then
+                ! the refined points in the layer go
                 call keep_off_solids(SAME_LAYER * dx)
-                call append_old(kept_old)
+                refined_x = xn(:, 1:n_new)
+                refined_id = idn(1:n_new)
+                ! the kept layer without the flow's close pairs (down to 0.02 spacings next
+                ! to the rectangle): the larger id of each pair goes
+                xn = x(:, kept_old)
+                idn = ids(kept_old)
+                n_new = size(kept_old)
                 call drop_close_pairs((1.0_wp - 1.0e-9_wp) * RELAX_FLOOR * dx)
+                kept_x = xn(:, 1:n_new)
+                kept_id = idn(1:n_new)
+                n_kept = n_new
+                ! the refined points closer than the floor to a kept one go, before the
+                ! selection, so that it makes the count
+                xn = reshape([refined_x, kept_x], [3, size(refined_id) + n_kept])
+                idn = [refined_id, kept_id]
+                n_new = size(idn)
+                call drop_close_pairs((1.0_wp - 1.0e-9_wp) * RELAX_FLOOR * dx, fresh_only=.true.)
                 xn = xn(:, pack([(a, a = 1, n_new)], idn(1:n_new) > base))
                 idn = pack(idn(1:n_new), idn(1:n_new) > base)
                 n_new = size(idn)
             end if
             call coarsen_step(dx / 2.0_wp, n - n_kept, st, msg)
             if (st /= 0) return
-            if (n_kept > 0) call append_old(kept_old)
+            if (n_kept > 0) then
+                xn = reshape([xn(:, 1:n_new), kept_x], [3, n_new + n_kept])
+                idn = [idn(1:n_new), kept_id]
+                n_new = n_new + n_kept
+            end if
             ! the kept rows stay where the flow had them (relaxed, their mirrors pushed them
             ! off: 8 particles within 0.75 spacings of the rectangle after it, 21 pinned)
             call relax_new_set(dx, pinned=idn(1:n_new) <= base)
-            ! (a pinned particle's partner may have moved closer than the relaxation's floor,
-            ! which assumes both move)
-            if (n_kept > 0) call drop_close_pairs((1.0_wp - 1.0e-9_wp) * RELAX_FLOOR * dx)
         end subroutine same_level_step
-
-        !> Rank 0: the old particles `which` (positions and ids) appended to xn/idn.
-        subroutine append_old(which)
-            integer, intent(in) :: which(:)
-            xn = reshape([xn(:, 1:n_new), x(:, which)], [3, n_new + size(which)])
-            idn = [idn(1:n_new), ids(which)]
-            n_new = n_new + size(which)
-        end subroutine append_old
 
         !> Rank 0: drop the refined points xn and their keys closer than WALL_GAP new
         !> spacings to a solid (to round-off: a plane wall's first row, half a spacing off,
@@ -472,9 +481,12 @@ contains
         end subroutine refined_off_solids
 
         !> Rank 0: of every pair of xn closer than `floor` (through the periodic faces too),
-        !> the particle with the larger id goes (its mass is handed on to the others).
-        subroutine drop_close_pairs(floor)
+        !> the particle with the larger id goes (its mass is handed on to the others). With
+        !> fresh_only only the pairs of a fresh id (> base) and an old one count: the fresh
+        !> one goes.
+        subroutine drop_close_pairs(floor, fresh_only)
             real(wp), intent(in) :: floor
+            logical, intent(in), optional :: fresh_only
             real(wp), allocatable :: y(:, :)
             integer, allocatable :: orig(:)
             logical, allocatable :: keep(:)
@@ -490,6 +502,9 @@ contains
                     b = orig(near%index(k))
                     if (b == a .or. .not. keep(a) .or. .not. keep(b)) cycle
                     if (sum((y(1:dim, a) - y(1:dim, near%index(k)))**2) >= floor**2) cycle
+                    if (present(fresh_only)) then
+                        if (fresh_only .and. (idn(a) > base .eqv. idn(b) > base)) cycle
+                    end if
                     if (idn(b) > idn(a)) then
                         keep(b) = .false.
                     else
@@ -560,12 +575,7 @@ contains
                 call with_mirrors_and_images(dim, box_lo, box_hi, periodic, solids, reach, &
                     reach, n_new, xn, y, orig, ny, moves_with)
                 call relax_displacements(dim, n_new, ny, y, sp, moves, kept, RELAX_FLOOR, &
-                    off_solids, pair_gap, moves_with)
-                if (present(pinned)) then
-                    do a = 1, n_new
-                        if (pinned(a)) moves(:, a) = 0.0_wp
-                    end do
-                end if
+                    off_solids, pair_gap, moves_with, pinned)
                 largest = 0.0_wp
                 do a = 1, n_new
                     xn(:, a) = wrapped(xn(:, a) + moves(:, a))
