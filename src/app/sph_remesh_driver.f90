@@ -406,7 +406,8 @@ contains
         !> larger id); then the set is relaxed, the kept ones pinned. (Measured on a channel
         !> with a rectangle whose gap to the wall is 1.5 spacings: 9 particles within 0.75
         !> spacings of the rectangle where the developed flow had 25, and the flow ran 6-9 %
-        !> faster for 3000 s; now 21, and 0-6 %, doc/validation.md.)
+        !> faster for 3000 s; now 17, the layer thinned to the floor, and -1..+5 %,
+        !> doc/validation.md.)
         subroutine same_level_step(st, msg)
             integer, intent(out) :: st
             character(len=:), allocatable, intent(inout) :: msg
