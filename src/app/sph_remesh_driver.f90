@@ -142,9 +142,6 @@ module sph_remesh_driver
     !> 1.97-2.06 with pairs kept; 0.6 kept too few at L/50: 2.14). The sets' kernel sums of
     !> volumes are as even either way. A lattice's nearest lie 0.9-1 apart.
     real(wp), parameter :: PAIR_GAP = 0.8_wp
-    !> same-level remeshing keeps the old particles within this many spacings of a solid
-    !> (same_level_step)
-    real(wp), parameter :: SAME_LAYER = 1.0_wp
 
     !> What a remesh did (global values, the same on every rank).
     type :: remesh_report_t
@@ -258,7 +255,8 @@ contains
         ! refined set's rows next to a plane wall lie at 0.5 and 1.0 dx: none is dropped)
         if (env%rank == 0 .and. mode == REMESH_SAME) then
             call keep_off_solids(WALL_GAP * dx)
-            call same_level_step(my_stat, message)
+            call coarsen_step(dx / 2.0_wp, n, my_stat, message)
+            if (my_stat == 0) call relax_new_set(dx)
         end if
         ! the new set in id order: its particles then lie about in space order (the ids follow
         ! the keys, the keys the old ids), for the transfer and for the caller's id order
@@ -397,76 +395,6 @@ contains
             n_new = n_kept
         end subroutine coarsen_step
 
-        !> Rank 0, same-level remeshing: the refined set xn/idn (fresh ids) coarsened back to
-        !> the fluid's count, but within SAME_LAYER spacings of a solid the old particles
-        !> stay (not closer than WALL_GAP; their ids kept, older than every fresh one): the
-        !> rows a developed flow holds next to its walls and bodies are what its wall model
-        !> made, and the refined set, which drops its surface rows, left them half empty. A
-        !> fresh point closer than RELAX_FLOOR to a kept one goes (drop_close_pairs: the
-        !> larger id); then the set is relaxed, the kept ones pinned. (Measured on a channel
-        !> with a rectangle whose gap to the wall is 1.5 spacings: 9 particles within 0.75
-        !> spacings of the rectangle where the developed flow had 25, and the flow ran 6-9 %
-        !> faster for 3000 s; now 17, the layer thinned to the floor, and -1..+5 %,
-        !> doc/validation.md.)
-        subroutine same_level_step(st, msg)
-            integer, intent(out) :: st
-            character(len=:), allocatable, intent(inout) :: msg
-            logical, allocatable :: near(:)
-            integer, allocatable :: kept_old(:)
-            real(wp), allocatable :: refined_x(:, :), kept_x(:, :)
-            integer(i8), allocatable :: refined_id(:), kept_id(:)
-            integer :: a, n_kept
-            st = 0
-            allocate(near(n))
-            near = .false.
-            if (present(solids)) then
-                if (allocated(solids%list)) then
-                    ! (not those closer than WALL_GAP: kept, one next to the rectangle's
-                    ! corner entered it 680 s after the remesh)
-                    do a = 1, n
-                        near(a) = .not. clear_of_solids(x(:, a), SAME_LAYER * dx) .and. &
-                            clear_of_solids(x(:, a), WALL_GAP * dx)
-                    end do
-                end if
-            end if
-            kept_old = pack([(a, a = 1, n)], near)
-            n_kept = 0
-            if (size(kept_old) > 0) then
-                ! the refined points in the layer go
-                call keep_off_solids(SAME_LAYER * dx)
-                refined_x = xn(:, 1:n_new)
-                refined_id = idn(1:n_new)
-                ! the kept layer without the flow's close pairs (down to 0.02 spacings next
-                ! to the rectangle): the larger id of each pair goes
-                xn = x(:, kept_old)
-                idn = ids(kept_old)
-                n_new = size(kept_old)
-                call drop_close_pairs((1.0_wp - 1.0e-9_wp) * RELAX_FLOOR * dx)
-                kept_x = xn(:, 1:n_new)
-                kept_id = idn(1:n_new)
-                n_kept = n_new
-                ! the refined points closer than the floor to a kept one go, before the
-                ! selection, so that it makes the count
-                xn = reshape([refined_x, kept_x], [3, size(refined_id) + n_kept])
-                idn = [refined_id, kept_id]
-                n_new = size(idn)
-                call drop_close_pairs((1.0_wp - 1.0e-9_wp) * RELAX_FLOOR * dx, fresh_only=.true.)
-                xn = xn(:, pack([(a, a = 1, n_new)], idn(1:n_new) > base))
-                idn = pack(idn(1:n_new), idn(1:n_new) > base)
-                n_new = size(idn)
-            end if
-            call coarsen_step(dx / 2.0_wp, n - n_kept, st, msg)
-            if (st /= 0) return
-            if (n_kept > 0) then
-                xn = reshape([xn(:, 1:n_new), kept_x], [3, n_new + n_kept])
-                idn = [idn(1:n_new), kept_id]
-                n_new = n_new + n_kept
-            end if
-            ! the kept rows stay where the flow had them (relaxed, their mirrors pushed them
-            ! off: 8 particles within 0.75 spacings of the rectangle after it, 21 pinned)
-            call relax_new_set(dx, pinned=idn(1:n_new) <= base)
-        end subroutine same_level_step
-
         !> Rank 0: drop the refined points xn and their keys closer than WALL_GAP new
         !> spacings to a solid (to round-off: a plane wall's first row, half a spacing off,
         !> stays).
@@ -482,12 +410,9 @@ contains
         end subroutine refined_off_solids
 
         !> Rank 0: of every pair of xn closer than `floor` (through the periodic faces too),
-        !> the particle with the larger id goes (its mass is handed on to the others). With
-        !> fresh_only only the pairs of a fresh id (> base) and an old one count: the fresh
-        !> one goes.
-        subroutine drop_close_pairs(floor, fresh_only)
+        !> the particle with the larger id goes (its mass is handed on to the others).
+        subroutine drop_close_pairs(floor)
             real(wp), intent(in) :: floor
-            logical, intent(in), optional :: fresh_only
             real(wp), allocatable :: y(:, :)
             integer, allocatable :: orig(:)
             logical, allocatable :: keep(:)
@@ -503,9 +428,6 @@ contains
                     b = orig(near%index(k))
                     if (b == a .or. .not. keep(a) .or. .not. keep(b)) cycle
                     if (sum((y(1:dim, a) - y(1:dim, near%index(k)))**2) >= floor**2) cycle
-                    if (present(fresh_only)) then
-                        if (fresh_only .and. (idn(a) > base .eqv. idn(b) > base)) cycle
-                    end if
                     if (idn(b) > idn(a)) then
                         keep(b) = .false.
                     else
@@ -559,11 +481,9 @@ contains
         !> its periodic images and mirrors across the solids pushing; a move that would bring a
         !> particle closer than WALL_GAP sp to a solid is not made. At most RELAX_PASSES
         !> passes; it stops after a pass whose largest move is below RELAX_TOLERANCE sp.
-        subroutine relax_new_set(sp, pair_gap, pinned)
+        subroutine relax_new_set(sp, pair_gap)
             real(wp), intent(in) :: sp
             real(wp), intent(in), optional :: pair_gap
-            !> particles that do not move (they push the others)
-            logical, intent(in), optional :: pinned(:)
             real(wp), allocatable :: y(:, :), moves(:, :)
             integer, allocatable :: orig(:), moves_with(:)
             real(wp) :: reach, largest
@@ -576,7 +496,7 @@ contains
                 call with_mirrors_and_images(dim, box_lo, box_hi, periodic, solids, reach, &
                     reach, n_new, xn, y, orig, ny, moves_with)
                 call relax_displacements(dim, n_new, ny, y, sp, moves, kept, RELAX_FLOOR, &
-                    off_solids, pair_gap, moves_with, pinned)
+                    off_solids, pair_gap, moves_with)
                 largest = 0.0_wp
                 do a = 1, n_new
                     xn(:, a) = wrapped(xn(:, a) + moves(:, a))

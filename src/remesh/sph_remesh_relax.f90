@@ -76,15 +76,12 @@ contains
     !> pair_gap (in dx): two points that are each other's nearest, closer than pair_gap dx,
     !> move together (both by their mean move), so that a clumped flow's pairs stay pairs
     !> while the relaxation evens the volumes around them (refinement, sph_remesh_driver).
-    !> fixed (optional): points 1..n that stay where they are (zeroed before the floor check,
-    !> which a move cancelled after it let a partner close in: a same-level remesh's kept
-    !> particles next to solids, sph_remesh_driver).
     !> moves_with(k) (optional): the point 1..n that point k > n is a periodic image of (it
     !> moves as that point does), 0 for one that does not move (a mirror): the floor holds
     !> across a periodic face too (without it, two points on both sides of the face came
     !> 0.37 new spacings apart: the refined L/50 cylinder flow at 6000 s).
     subroutine relax_displacements(dim, n, ny, y, dx, d, kept, floor, allowed, pair_gap, &
-            moves_with, fixed)
+            moves_with)
         integer, intent(in) :: dim, n, ny
         real(wp), intent(in) :: y(:, :), dx
         real(wp), intent(out) :: d(:, :)
@@ -92,8 +89,6 @@ contains
         real(wp), intent(in), optional :: floor, pair_gap
         procedure(move_allowed_i), optional :: allowed
         integer, intent(in), optional :: moves_with(:)
-        !> points 1..n that do not move (they push), before the floor is checked
-        logical, intent(in), optional :: fixed(:)
         type(relax_list_t) :: own
         type(kernel_t) :: kernel
         real(wp) :: h, vol
@@ -223,11 +218,6 @@ contains
             if (present(allowed)) then
                 do a = 1, n
                     if (.not. allowed(y(:, a) + d(:, a))) d(:, a) = 0.0_wp
-                end do
-            end if
-            if (present(fixed)) then
-                do a = 1, n
-                    if (fixed(a)) d(:, a) = 0.0_wp
                 end do
             end if
             if (present(floor)) call keep_floor(close_a(1:n_close), close_b(1:n_close), &
