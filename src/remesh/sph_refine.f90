@@ -53,7 +53,8 @@
 !> (a gap of a whole new spacing instead of half of one). So:
 !>  1. Mirrors. Every particle with 0 <= d < MIRROR_DEPTH dx (2 dx: two old rows) is mirrored
 !>     across each such surface (sph_solids' solid_reflect: x - 2 d n) with id c span + id,
-!>     span = 1 + the largest id, c the solid's number; the construction runs on the set and
+!>     span = 1 + the largest id, c the solid's number (a body's only where solid_mirrors
+!>     allows: its images fill its inside once); the construction runs on the set and
 !>     its mirrors, so the cells that straddle a surface (a particle, its mirror and their
 !>     neighbours) get their midpoints and centres, ON the surface (d = 0 for a plane: a new
 !>     row at the wall, as dense as the others). A particle and its own mirror are an edge
@@ -146,7 +147,7 @@ module sph_refine
     use sph_coarsen, only: id_hash
     use sph_key_sort, only: sort_by_keys
     use sph_solids, only: solids_t, solid_distance, solid_normal, solid_reflect, facing_plane, &
-        corner_planes, MAX_CORNER_COMBOS, next_image_distance
+        corner_planes, MAX_CORNER_COMBOS, next_image_distance, solid_mirrors
     implicit none
     private
     public :: refine_positions, wall_map, EDGE_FACTOR, MIRROR_DEPTH, WALL_BAND, MIN_GAP
@@ -265,6 +266,7 @@ contains
                 do a = 1, n
                     d = solid_distance(solids%list(s), x(:, a) + org)
                     if (d < 0.0_wp .or. d >= MIRROR_DEPTH * dx) cycle
+                    if (.not. solid_mirrors(solids%list(s), x(:, a) + org)) cycle
                     call add_mirror(solid_reflect(solids%list(s), x(:, a) + org), s, a)
                     if (2.0_wp * d < MIRROR_EDGE * dx) call add_mirror_edge(a, na)
                 end do

@@ -5,7 +5,7 @@
 module sph_remesh_images
     use sph_kinds, only: wp
     use sph_solids, only: solids_t, solid_distance, solid_reflect, corner_planes, &
-        MAX_CORNER_COMBOS
+        MAX_CORNER_COMBOS, solid_mirrors
     implicit none
     private
     public :: with_periodic_images, relative_to, mirror_shifts, with_images, &
@@ -177,6 +177,7 @@ contains
             do i = 1, n0
                 d = solid_distance(solids%list(s), y(:, i) + box_lo)
                 if (d < 0.0_wp .or. d >= dist) cycle
+                if (.not. solid_mirrors(solids%list(s), y(:, i) + box_lo)) cycle
                 ny = ny + 1
                 yt(:, ny) = solid_reflect(solids%list(s), y(:, i) + box_lo) - box_lo
                 yt(dim + 1:, ny) = 0.0_wp
