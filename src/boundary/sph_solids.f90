@@ -251,25 +251,34 @@ contains
     !> surface point on no face) has none; a round body's only up to its centre (d <= radius).
     !> Without this the images of the three regions round a convex edge all land in the
     !> edge's quarter of the solid (up to seven over a box's vertex): the refinement of a 3D
-    !> channel with a box lost its first row over the box's faces (1-6 particles within one new
-    !> spacing where the run made fine has 24-36) and its relaxation pushed the row off them.
-    pure logical function solid_mirrors(solid, x)
+    !> channel with a box lost its first row over the box's faces (0-7 particles within one
+    !> new spacing where the run made fine has 24-36) and its relaxation pushed the row off
+    !> them. level (optional, a length): a point within it of the plane of another face counts
+    !> as level with that face, and its image, within level of that face, is kept (the
+    !> refinement's construction: the images of the particles level with a body's face make
+    !> that face's surface row where no fluid lies beyond it, as in the slot of half a spacing
+    !> between a rectangle and a wall, which refined with 0 of its 10 particles without them).
+    pure logical function solid_mirrors(solid, x, level)
         type(solid_t), intent(in) :: solid
         real(wp), intent(in) :: x(3)
-        real(wp) :: r(3), q(3), tie
+        real(wp), intent(in), optional :: level
+        real(wp) :: r(3), q(3), tie, lv
         integer :: a, b
         select case (solid%shape)
         case (SOLID_RECTANGLE, SOLID_BOX)
             r = body_offset(solid, x)
             q = abs(r) - solid%half
-            solid_mirrors = count(q > 0.0_wp) == 1
-            if (.not. solid_mirrors) return
             a = maxloc(q, dim=1)
+            ! (round-off: a lattice site level with a face lies a few ulps either side of it)
             tie = 1.0e-9_wp * solid%half(a)
+            lv = tie
+            if (present(level)) lv = max(level, tie)
+            solid_mirrors = q(a) > 0.0_wp .and. count(q > lv) <= 1
+            if (.not. solid_mirrors) return
             ! the image's depth is q(a) below face a, -q(b) below the faces of axis b, and
             ! 2 half(a) - q(a) below the opposite face (a tie there goes to the lower side)
             do b = 1, 3
-                if (b == a) cycle
+                if (b == a .or. abs(q(b)) <= lv) cycle
                 if (b < a) solid_mirrors = solid_mirrors .and. q(a) < -q(b) - tie
                 if (b > a) solid_mirrors = solid_mirrors .and. q(a) <= -q(b) + tie
             end do

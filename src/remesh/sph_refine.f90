@@ -162,6 +162,10 @@ module sph_refine
     !> spacings off a body, and only the particles within EDGE_FACTOR / 2 of it put their
     !> midpoints on the surface row (header, rule 1)
     real(wp), parameter :: MIRROR_EDGE = 2.0_wp
+    !> a particle within this (in old spacings) of the plane of a box's face counts as level
+    !> with it: its image across the next face is kept (sph_solids' solid_mirrors), and makes
+    !> the surface row of the face where no fluid lies beyond it
+    real(wp), parameter :: MIRROR_LEVEL = 0.25_wp
     real(wp), parameter :: WALL_BAND = 20.0_wp
     !> smallest distance (in new spacings) a constructed or moved point keeps from the points
     !> kept before it (thinning, see the header)
@@ -266,7 +270,8 @@ contains
                 do a = 1, n
                     d = solid_distance(solids%list(s), x(:, a) + org)
                     if (d < 0.0_wp .or. d >= MIRROR_DEPTH * dx) cycle
-                    if (.not. solid_mirrors(solids%list(s), x(:, a) + org)) cycle
+                    if (.not. solid_mirrors(solids%list(s), x(:, a) + org, &
+                        MIRROR_LEVEL * dx)) cycle
                     call add_mirror(solid_reflect(solids%list(s), x(:, a) + org), s, a)
                     if (2.0_wp * d < MIRROR_EDGE * dx) call add_mirror_edge(a, na)
                 end do
@@ -397,7 +402,9 @@ contains
                 z(dim + 1:) = 0.0_wp
             end if
             if (s_1 == 0) return
-            if (d_1 < b_1 .and. b_1 > 0.25_wp * dx) then
+            ! (a band of exactly dx / 4, half-way to a solid half an old spacing away, maps
+            ! the surface row to the half-way point: the slot under a body level with a row)
+            if (d_1 < b_1 .and. b_1 > (0.25_wp - SURFACE_TOL) * dx) then
                 z = z + (wall_map(max(d_1, 0.0_wp), dx, b_1) - d_1) &
                     * solid_normal(solids%list(s_1), yz)
                 z(dim + 1:) = 0.0_wp
