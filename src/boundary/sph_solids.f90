@@ -258,12 +258,17 @@ contains
     !> refinement's construction: the images of the particles level with a body's face make
     !> that face's surface row where no fluid lies beyond it, as in the slot of half a spacing
     !> between a rectangle and a wall, which refined with 0 of its 10 particles without them).
-    pure logical function solid_mirrors(solid, x, level)
+    !> others, self (optional): all the solids and this one's number; a face that another
+    !> covers (a body touching this one) claims no part of the inside.
+    pure logical function solid_mirrors(solid, x, level, others, self)
         type(solid_t), intent(in) :: solid
         real(wp), intent(in) :: x(3)
         real(wp), intent(in), optional :: level
+        type(solids_t), intent(in), optional :: others
+        integer, intent(in), optional :: self
         real(wp) :: r(3), q(3), tie, lv
         integer :: a, b
+        logical :: nearer
         select case (solid%shape)
         case (SOLID_RECTANGLE, SOLID_BOX)
             r = body_offset(solid, x)
@@ -279,8 +284,13 @@ contains
             ! 2 half(a) - q(a) below the opposite face (a tie there goes to the lower side)
             do b = 1, 3
                 if (b == a .or. abs(q(b)) <= lv) cycle
-                if (b < a) solid_mirrors = solid_mirrors .and. q(a) < -q(b) - tie
-                if (b > a) solid_mirrors = solid_mirrors .and. q(a) <= -q(b) + tie
+                if (b < a) then
+                    nearer = q(a) < -q(b) - tie
+                else
+                    nearer = q(a) <= -q(b) + tie
+                end if
+                if (.not. nearer) nearer = face_hidden(b)
+                solid_mirrors = solid_mirrors .and. nearer
             end do
             if (r(a) < 0.0_wp) then
                 solid_mirrors = solid_mirrors .and. q(a) <= solid%half(a) + tie
@@ -292,6 +302,29 @@ contains
         case default
             solid_mirrors = .true.
         end select
+
+    contains
+
+        !> Whether the face of axis b that the image faces is covered, where the image lies
+        !> off it, by another of `others` (a body touching this one): no fluid is mirrored
+        !> across a covered face, so it claims no part of the inside (without this the corner
+        !> where a rectangle touches another's face kept particles of 0.44 the median mass)
+        pure logical function face_hidden(b)
+            integer, intent(in) :: b
+            real(wp) :: p(3)
+            integer :: t
+            face_hidden = .false.
+            if (.not. (present(others) .and. present(self))) return
+            if (.not. allocated(others%list)) return
+            ! the image's foot on that face, a little outside it (absolute coordinates)
+            p = x
+            p(a) = x(a) - r(a) + sign(solid%half(a) - q(a), r(a))
+            p(b) = x(b) - r(b) + sign(solid%half(b) * (1.0_wp + 1.0e-6_wp), r(b))
+            do t = 1, size(others%list)
+                if (t == self) cycle
+                if (solid_distance(others%list(t), p) < 0.0_wp) face_hidden = .true.
+            end do
+        end function face_hidden
     end function solid_mirrors
 
     !> The solid that x lies deepest inside (most negative distance), 0 when x is in the

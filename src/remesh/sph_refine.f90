@@ -271,7 +271,7 @@ contains
                     d = solid_distance(solids%list(s), x(:, a) + org)
                     if (d < 0.0_wp .or. d >= MIRROR_DEPTH * dx) cycle
                     if (.not. solid_mirrors(solids%list(s), x(:, a) + org, &
-                        MIRROR_LEVEL * dx)) cycle
+                        MIRROR_LEVEL * dx, solids, s)) cycle
                     call add_mirror(solid_reflect(solids%list(s), x(:, a) + org), s, a)
                     if (2.0_wp * d < MIRROR_EDGE * dx) call add_mirror_edge(a, na)
                 end do

@@ -177,7 +177,8 @@ contains
             do i = 1, n0
                 d = solid_distance(solids%list(s), y(:, i) + box_lo)
                 if (d < 0.0_wp .or. d >= dist) cycle
-                if (.not. solid_mirrors(solids%list(s), y(:, i) + box_lo)) cycle
+                if (.not. solid_mirrors(solids%list(s), y(:, i) + box_lo, others=solids, &
+                    self=s)) cycle
                 ny = ny + 1
                 yt(:, ny) = solid_reflect(solids%list(s), y(:, i) + box_lo) - box_lo
                 yt(dim + 1:, ny) = 0.0_wp
