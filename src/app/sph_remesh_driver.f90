@@ -66,10 +66,11 @@
 !> Next to solids (optional argument solids): refine_positions applies its wall rule, and the
 !> transfer is handed the mirror images (across each solid surface, and at a box's corner
 !> across both or all three walls: with_mirrors) of the old and new
-!> particles within MIRROR_REACH = 3 h of it, the old ones with their mass, velocity, density
-!> and energy (each rank mirrors the old particles it owns, and its new particles with their
-!> ghosts, which reach as far as the mirrors of both can bring a pair within 2 h:
-!> ghost_reaches). A new particle next to a wall then
+!> particles within MIRROR_REACH = 3 h of it, the old ones with their mass, density and
+!> energy and the velocity odd about the solid's (2 v_s - v, with_mirrors: a no-slip wall's
+!> shear goes on through it). Each rank mirrors the old particles it owns, and its new
+!> particles with their ghosts, which reach as far as the mirrors of both can bring a pair
+!> within 2 h (ghost_reaches). A new particle next to a wall then
 !> sees old particles on both sides, as in the interior, and takes a mass that matches its
 !> volume (without mirrors the first row got 20 % too little: only the old row behind it
 !> reaches it). The mirrors' shares are dropped; as for a plane wall the exchange with the
@@ -664,7 +665,7 @@ contains
             type(domain_t) :: parts
             type(particles_t) :: old, others
             type(halo_t) :: halo
-            real(wp), allocatable :: xo(:, :), xs(:, :), acc(:, :), reach_new(:)
+            real(wp), allocatable :: xo(:, :), xs(:, :), acc(:, :), reach_new(:), vo(:, :)
             integer, allocatable :: orig_o(:), orig_n(:)
             integer :: no, ns, i, nmf, nvf, own, n_isolated
             logical :: ok, full_reach
@@ -695,8 +696,9 @@ contains
             ! old positions relative to box_lo, the mirrors across the solids after them
             no = old%n_owned
             call relative_to(box_lo, old%x, no, xo, orig_o)
+            vo = old%v(:, 1:max(no, 1))
             if (present(solids)) &
-                call with_mirrors(dim, solids, box_lo, h * MIRROR_REACH, xo, orig_o, no)
+                call with_mirrors(dim, solids, box_lo, h * MIRROR_REACH, xo, orig_o, no, vo)
             xo(dim + 1:, :) = 0.0_wp
             reach_new = ghost_reaches(h, global_max(env, max(0.0_wp, &
                 maxval(mirror_shifts(xo, orig_o, old%n_owned, no)))))
@@ -723,7 +725,7 @@ contains
                 if (allocated(acc)) deallocate(acc)
                 allocate(acc(transfer_rows(dim), max(ns, 1)))
                 call transfer_accumulate(dim, h, no, xo, old%m(orig_o(1:no)), &
-                    old%v(:, orig_o(1:no)), old%rho(orig_o(1:no)), old%e(orig_o(1:no)), ns, &
+                    vo(:, 1:no), old%rho(orig_o(1:no)), old%e(orig_o(1:no)), ns, &
                     xs, acc, st, text, nmf, n_isolated)
                 if (full_reach .or. global_sum(env, int(n_isolated, i8)) == 0) exit
                 full_reach = .true.

@@ -67,6 +67,26 @@ ok = abs(d.min() - 12.5e-6) < 0.1e-6 and first.sum() == 40 and d[first].max() < 
 ok = ok and abs(ratio - 1.0).max() < 0.05
 sys.exit(0 if ok else 1)
 EOF_PY
+# the refined velocities carry the coarse flow (0.92 % from the analytic start-up profile at
+# 0.02 s): 0.66 % at the new particles; 3.5 % while the transfer's images across the walls
+# carried the velocity even about them (the first new row at 2.3 times its speed)
+"$python" - refined.h5 > refined_error.log 2>&1 <<'EOF_PY' || \
+    fail "the refined velocities are off the flow:" refined_error.log
+import sys, h5py, numpy as np, f90nml
+with h5py.File(sys.argv[1], "r") as f:
+    fluid = f["particles/solid"][:] == 0
+    y = f["particles/position"][:, 1][fluid]
+    u = f["particles/velocity"][:, 0][fluid]
+    t = float(f.attrs["time"])
+    nml = f90nml.reads(f.attrs["input"])
+nu, g, L = float(nml["fluid"]["nu"]), float(nml["fluid"]["body_force"][0]), 1.0e-3
+k = 2 * np.arange(200)[:, None] + 1
+exact = g / (2 * nu) * y * (L - y) - (4 * g * L**2 / (nu * np.pi**3 * k**3) * np.sin(
+    np.pi * k * y / L) * np.exp(-k**2 * np.pi**2 * nu * t / L**2)).sum(0)
+error = 100 * np.sqrt(((u - exact)**2).sum() / (exact**2).sum())
+print("refined at t = %g s: relative L2 error %.4f %%" % (t, error))
+sys.exit(0 if error < 0.8 else 1)
+EOF_PY
 for what in mass momentum; do
     change=$(grep "^  $what" remesh.log | sed 's/.*change[^0-9]*\([0-9.E+-]*\)).*/\1/')
     awk -v c="$change" 'BEGIN { exit !(c + 0 < 1e-12) }' || \
@@ -81,12 +101,15 @@ grep -q "particles: .* real (fluid 800)" fine.log || fail "unexpected continuati
 awk '/\.\.[0-9]/ { split($5, r, "\\.\\."); if (r[1] < 995 || r[2] > 1005) bad = 1 }
      END { exit bad }' fine.log || fail "density left rho0 +- 0.5 %:" fine.log
 ls fine/*_checkpoint_*.h5 > /dev/null 2>&1 || fail "the continuation wrote no checkpoint"
-# proxy of the 1 s criterion (doc/user-guide.md recipe: 0.133 % against 0.177 % at L/40 from
-# the start): at 0.0225 s the continuation's error is 0.385 % (L/40 from the start 0.22 %,
-# L/20 0.86 %; without the wall rule 3.7 %)
+# proxy of the 1 s criterion (doc/user-guide.md recipe: 0.135 % against 0.177 % at L/40 from
+# the start): at 0.0225 s the continuation's error is 0.571 % (L/40 from the start 0.22 %,
+# L/20 0.86 %; without the wall rule 3.7 %). It carries the coarse run's lead in the start-up
+# (above), which the L/40 operator takes out over the channel's time, not in 19 steps; the
+# transfer's images with the velocity even about the walls gave 0.385 %: the first row's
+# excess speed, taken out of every particle by the momentum correction, cancelled that lead
 error=$(grep -o "relative L2 = *[0-9.]*" fine.log | tail -1 | grep -o "[0-9.]*$")
-awk -v e="$error" 'BEGIN { exit !(e + 0 > 0 && e + 0 < 0.5) }' || \
-    fail "L2 error after refining $error % (expected < 0.5 %):" fine.log
+awk -v e="$error" 'BEGIN { exit !(e + 0 > 0 && e + 0 < 0.65) }' || \
+    fail "L2 error after refining $error % (expected < 0.65 %):" fine.log
 
 # the L/20 input cannot continue the L/40 checkpoint
 if run "$np" "$coarse" --restart refined.h5 > wrong.log 2>&1; then
