@@ -42,7 +42,9 @@
 !> Ids: refined particles get fresh ids from their refinement keys (sph_global_ids, base =
 !> the largest id of any particle, walls included); kept particles of a coarsening keep their
 !> ids. Same level = refine, then coarsen the refined set (its kept particles carry the fresh
-!> ids), with ONE transfer from the old particles to the final ones.
+!> ids), with ONE transfer from the old particles to the final ones; the particles of narrow
+!> gaps (two solids facing each other closer than NARROW_GAP spacings together) stay as they
+!> were, with their ids (set_aside_gaps), and the transfer hands them on like the others.
 !>
 !> Coarsening: the candidates closer than WALL_GAP new spacings to a body are dropped (the
 !> fine first row lies 0.25 new spacings off: kept, it let a particle into Morris' cylinder
@@ -100,7 +102,7 @@ module sph_remesh_driver
         migrate_particles
     use sph_halo, only: halo_t, halo_setup, halo_build, halo_reverse_sum
     use sph_refine, only: refine_positions, WALL_BAND
-    use sph_solids, only: solids_t, solid_distance, facing_plane, SOLID_PLANE
+    use sph_solids, only: solids_t, solid_distance, solid_normal, facing_plane, SOLID_PLANE
     use sph_cell_list, only: neighbour_list_t, build_neighbour_list
     use sph_remesh_images, only: relative_to, mirror_shifts, with_images, &
         with_mirrors_and_images, with_mirrors
@@ -113,7 +115,7 @@ module sph_remesh_driver
     private
     public :: remesh_report_t, remesh_fluid, remesh_mode_code, remesh_spacing_factor
     public :: fluid_mass_momentum, restore_momentum, restore_energy, accurate_sum
-    public :: REMESH_NONE, REMESH_REFINE, REMESH_COARSEN, REMESH_SAME
+    public :: REMESH_NONE, REMESH_REFINE, REMESH_COARSEN, REMESH_SAME, NARROW_GAP
 
     integer, parameter :: REMESH_NONE = 0
     integer, parameter :: REMESH_REFINE = 1
@@ -143,6 +145,14 @@ module sph_remesh_driver
     !> 1.97-2.06 with pairs kept; 0.6 kept too few at L/50: 2.14). The sets' kernel sums of
     !> volumes are as even either way. A lattice's nearest lie 0.9-1 apart.
     real(wp), parameter :: PAIR_GAP = 0.8_wp
+    !> a same-level remesh leaves the particles of a narrow gap as they are (module header):
+    !> a particle lies in one when two solids whose normals there are more than 120 degrees
+    !> apart (cosine below GAP_FACING) are closer than NARROW_GAP spacings together (the sum
+    !> of its distances to them); new points closer than GAP_CLEAR spacings to such a
+    !> particle go
+    real(wp), parameter :: NARROW_GAP = 2.5_wp
+    real(wp), parameter :: GAP_FACING = -0.5_wp
+    real(wp), parameter :: GAP_CLEAR = 0.75_wp
 
     !> What a remesh did (global values, the same on every rank).
     type :: remesh_report_t
@@ -160,6 +170,8 @@ module sph_remesh_driver
         !> to its nearest, the transfer's ghosts then taken at the full reach)
         integer :: n_isolated = 0
         integer :: relax_passes = 0                  !< relaxation passes made
+        !> same level: fluid particles left as they were in narrow gaps (module header)
+        integer :: n_in_gaps = 0
         !> set by the caller (sph_stepper_remesh's consistent_masses): passes of the fluid
         !> masses' adjustment to the kernel sums, and the largest |kernel sum / handed-on
         !> density - 1| of a fluid particle before and after it (mass_passes < 0: none)
@@ -225,7 +237,7 @@ contains
         logical, intent(in), optional :: all_ghosts
         real(wp), allocatable :: x(:, :), xn(:, :)
         integer(i8), allocatable :: ids(:), idn(:)
-        integer :: n, n_new, my_stat
+        integer :: n, n_new, my_stat, n_src
         integer(i8) :: base
         real(wp) :: t0, t_transfer, ghost_ratio, relax_gap
         character(len=:), allocatable :: message
@@ -244,6 +256,10 @@ contains
         base = global_max_id(env, p%id, p%n_owned)
 
         call gather_positions(env, p, fluid, n, x, ids)
+        ! same level: the particles of narrow gaps last in x, left out of the construction
+        n_src = n
+        if (env%rank == 0 .and. mode == REMESH_SAME) call set_aside_gaps()
+        report%n_in_gaps = int(global_max(env, int(n - n_src, i8)))
         my_stat = 0
         n_new = 0
         allocate(xn(3, 0), idn(0))
@@ -256,7 +272,15 @@ contains
         ! refined set's rows next to a plane wall lie at 0.5 and 1.0 dx: none is dropped)
         if (env%rank == 0 .and. mode == REMESH_SAME) then
             call keep_off_solids(WALL_GAP * dx)
-            call coarsen_step(dx / 2.0_wp, n, my_stat, message)
+            if (n_src < n) call keep_out_of_gaps()
+            call coarsen_step(dx / 2.0_wp, n_src, my_stat, message)
+            ! the particles of the narrow gaps join the set as they were, with their ids
+            ! (below every fresh one); the relaxation moves none of them (off_solids)
+            if (my_stat == 0 .and. n_src < n) then
+                xn = reshape([xn(:, 1:n_new), x(:, n_src + 1:n)], [3, n_new + n - n_src])
+                idn = [idn(1:n_new), ids(n_src + 1:n)]
+                n_new = n_new + n - n_src
+            end if
             if (my_stat == 0) call relax_new_set(dx)
         end if
         ! the new set in id order: its particles then lie about in space order (the ids follow
@@ -302,7 +326,7 @@ contains
             select case (mode)
             case (REMESH_REFINE, REMESH_SAME)
                 deallocate(xn)
-                call refine_positions(dim, n, x, ids, dx, n_new, xn, keys, st, text, &
+                call refine_positions(dim, n_src, x, ids, dx, n_new, xn, keys, st, text, &
                     algorithm_box(dx), irregular, solids, box_lo, &
                     merge(0.0_wp, WALL_BAND, mode == REMESH_SAME), &
                     merge(2**dim * n, 0, mode == REMESH_REFINE))
@@ -436,24 +460,25 @@ contains
                     end if
                 end do
             end do
+            call keep_only(keep)
+        end subroutine drop_close_pairs
+
+        !> Rank 0: keep the points of xn/idn marked in keep, in their order.
+        subroutine keep_only(keep)
+            logical, intent(in) :: keep(:)
+            integer :: a
             if (all(keep)) return
             xn = xn(:, pack([(a, a = 1, n_new)], keep))
             idn = idn(pack([(a, a = 1, n_new)], keep))
             n_new = size(idn)
-        end subroutine drop_close_pairs
+        end subroutine keep_only
 
         !> Rank 0: drop the candidates xn/idn closer than gap to any solid surface (with
         !> curved_only, to any solid that is not a plane).
         subroutine keep_off_solids(gap, curved_only)
             real(wp), intent(in) :: gap
             logical, intent(in), optional :: curved_only
-            logical, allocatable :: clear(:)
-            integer :: a
-            clear = clear_mask(gap, curved_only)
-            if (all(clear)) return
-            xn = xn(:, pack([(a, a = 1, n_new)], clear))
-            idn = idn(pack([(a, a = 1, n_new)], clear))
-            n_new = size(idn)
+            call keep_only(clear_mask(gap, curved_only))
         end subroutine keep_off_solids
 
         !> Rank 0: whether each point of xn is at least gap from every solid surface (with
@@ -515,7 +540,93 @@ contains
         logical function off_solids(z)
             real(wp), intent(in) :: z(3)
             off_solids = clear_of_solids(wrapped(z), relax_gap)
+            ! (and, with particles left in narrow gaps, out of the gaps: those stay put)
+            if (off_solids .and. n_src < n) off_solids = .not. in_narrow_gap(wrapped(z))
         end function off_solids
+
+        !> Rank 0, same level: the particles of x/ids that lie in a narrow gap moved to the
+        !> end (their order kept), n_src the count before them. Across a gap narrower than
+        !> NARROW_GAP spacings the free strip (WALL_GAP off each side) is narrower than the
+        !> selection's radius, so the construction and selection leave one row at a whole
+        !> spacing where the flow holds its particles closer (a gap of 1.4 spacings: one row
+        !> at 0.7), and the transfer takes the difference's mass out of the gap; remeshed
+        !> every 20 steps, a channel with such gaps ran 29 % faster than the run made at half
+        !> the spacing (unremeshed: 6 %).
+        subroutine set_aside_gaps()
+            logical, allocatable :: gap(:)
+            integer, allocatable :: order(:)
+            integer :: a
+            allocate(gap(n))
+            do a = 1, n
+                gap(a) = in_narrow_gap(x(:, a))
+            end do
+            if (.not. any(gap)) return
+            n_src = count(.not. gap)
+            allocate(order(n))
+            order(1:n_src) = pack([(a, a = 1, n)], .not. gap)
+            order(n_src + 1:n) = pack([(a, a = 1, n)], gap)
+            x(:, 1:n) = x(:, order)
+            ids(1:n) = ids(order)
+        end subroutine set_aside_gaps
+
+        !> Whether z (relative to box_lo) lies in a narrow gap (set_aside_gaps): two solids
+        !> facing each other there, closer than NARROW_GAP spacings together.
+        logical function in_narrow_gap(z)
+            real(wp), intent(in) :: z(3)
+            ! the solids within NARROW_GAP spacings of z (only those can make a gap with it)
+            integer, parameter :: MAX_NEAR = 32
+            real(wp) :: d, normal(3, MAX_NEAR), d_near(MAX_NEAR)
+            integer :: s, t, n_near
+            in_narrow_gap = .false.
+            if (.not. present(solids)) return
+            if (.not. allocated(solids%list)) return
+            n_near = 0
+            do s = 1, size(solids%list)
+                d = solid_distance(solids%list(s), z + box_lo)
+                if (d >= NARROW_GAP * dx .or. n_near == MAX_NEAR) cycle
+                n_near = n_near + 1
+                d_near(n_near) = d
+                normal(:, n_near) = solid_normal(solids%list(s), z + box_lo)
+            end do
+            do s = 1, n_near
+                do t = s + 1, n_near
+                    if (d_near(s) + d_near(t) >= NARROW_GAP * dx) cycle
+                    if (dot_product(normal(:, s), normal(:, t)) >= GAP_FACING) cycle
+                    in_narrow_gap = .true.
+                    return
+                end do
+            end do
+        end function in_narrow_gap
+
+        !> Rank 0, same level: drop the new points xn/idn that lie in a narrow gap or closer
+        !> than GAP_CLEAR spacings to a particle left there (x(:, n_src + 1:n), periodic
+        !> images included).
+        subroutine keep_out_of_gaps()
+            real(wp), allocatable :: y(:, :), yi(:, :)
+            integer, allocatable :: orig(:)
+            logical, allocatable :: keep(:)
+            type(neighbour_list_t) :: near
+            integer :: a, k, b, n_gap, ny
+            n_gap = n - n_src
+            allocate(keep(n_new))
+            do a = 1, n_new
+                keep(a) = .not. in_narrow_gap(xn(:, a))
+            end do
+            ! the gap's particles are the list's rows, the new points its candidates
+            y = reshape([x(:, n_src + 1:n), xn(:, 1:n_new)], [3, n_gap + n_new])
+            call with_images(dim, box_lo, box_hi, periodic, n_gap + n_new, y, GAP_CLEAR * dx, &
+                yi, orig, ny)
+            call build_neighbour_list(yi, ny, n_gap, dim, GAP_CLEAR * dx, near)
+            do a = 1, n_gap
+                do k = near%start(a), near%start(a + 1) - 1
+                    b = orig(near%index(k)) - n_gap
+                    if (b < 1) cycle
+                    if (sum((yi(1:dim, a) - yi(1:dim, near%index(k)))**2) < (GAP_CLEAR * dx)**2) &
+                        keep(b) = .false.
+                end do
+            end do
+            call keep_only(keep)
+        end subroutine keep_out_of_gaps
 
         !> z wrapped into the box along the periodic axes
         function wrapped(z) result(w)

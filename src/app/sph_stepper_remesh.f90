@@ -13,7 +13,7 @@ submodule (sph_stepper) sph_stepper_remesh
     use sph_read_checks, only: check_read_particles
     use sph_remesh_driver, only: remesh_report_t, remesh_fluid, remesh_mode_code, &
         remesh_spacing_factor, fluid_mass_momentum, restore_momentum, restore_energy, accurate_sum, &
-        REMESH_NONE, REMESH_REFINE, REMESH_COARSEN, REMESH_SAME
+        REMESH_NONE, REMESH_REFINE, REMESH_COARSEN, REMESH_SAME, NARROW_GAP
     use sph_rates, only: compute_summation_density
     use sph_particles, only: HALO_GHOST
     use sph_domain_input, only: misfit_axis
@@ -381,6 +381,12 @@ contains
             report%n_isolated, '), velocity ', report%n_velocity_fallback, &
             '; relaxation passes ', report%relax_passes
         call log_info(trim(line))
+        if (report%n_in_gaps > 0) then
+            write(line, '(a,i0,a,f0.1,a)') '  narrow gaps: ', report%n_in_gaps, ' fluid ' // &
+                'particles left as they were (solids facing each other less than ', &
+                NARROW_GAP, ' spacings apart)'
+            call log_info(trim(line))
+        end if
         if (report%mass_passes < 0) return
         write(line, '(a,i0,a,es9.2,a,es9.2,a)') '  fluid masses adjusted to the kernel sums in ', &
             report%mass_passes, ' passes, largest |kernel sum / handed-on density - 1| ', &
