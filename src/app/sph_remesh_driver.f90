@@ -78,15 +78,16 @@
 !> reaches it). The mirrors' shares are dropped; as for a plane wall the exchange with the
 !> mirrors is symmetric only to round-off (and for a curved one to O(dx/R)), the new masses
 !> are scaled by (old total mass) / (new total mass), and momentum gets the uniform
-!> correction above. The densities are not: the volume handed to the mirrors is short by
-!> the same fraction as the mass (the old particles hand both with one set of weights), so
-!> scaling the masses alone gives both back. (Scaling the densities too, as before, raised
-!> every fluid density by that factor: +0.7-0.9 % next to a 3D sphere or cylinder, +23 % for a
-!> coarsening around a box body 2 new spacings across; the fluid at rest then flowed.)
+!> correction above. The densities are not scaled: they are interpolated, the mirrors
+!> carrying their particles' densities. (Scaling the densities too, when they were the
+!> handed mass over the handed volume, raised every fluid density by that factor: +0.7-0.9 %
+!> next to a 3D sphere or cylinder, +23 % for a coarsening around a box body 2 new spacings
+!> across; the fluid at rest then flowed.)
 !>
-!> Density: rho_new = m_new / (volume handed on), the volume m/rho of each old particle being
-!> handed on with the same weights as its mass (sph_remesh_interp): a uniform density stays
-!> exactly uniform, and the density is consistent with the new mass and spacing. Energy: the
+!> Density: interpolated by sph_remesh_interp's narrow first-order interpolant (a uniform or
+!> linear density reproduced, a weakly compressible flow's pressure peaks next to bodies
+!> kept); masses follow the volumes handed on, and the caller adjusts them to the kernel
+!> sums where the new set was relaxed (sph_stepper_remesh's consistent_masses). Energy: the
 !> handed-on m e divided by the new mass. Pressure, rates and start-of-step copies are left to
 !> the caller (update_pressure; the next step saves its start).
 module sph_remesh_driver
@@ -166,6 +167,7 @@ module sph_remesh_driver
         real(wp) :: seconds_positions = 0.0_wp, seconds_transfer = 0.0_wp
         integer :: n_irregular = 0                   !< refinement: cells without a centre
         integer :: n_mass_fallback = 0, n_velocity_fallback = 0   !< transfer fallbacks
+        integer :: n_density_fallback = 0
         !> of the mass fallbacks, old particles with no new one in their support (each handed
         !> to its nearest, the transfer's ghosts then taken at the full reach)
         integer :: n_isolated = 0
@@ -778,7 +780,7 @@ contains
             type(halo_t) :: halo
             real(wp), allocatable :: xo(:, :), xs(:, :), acc(:, :), reach_new(:), vo(:, :)
             integer, allocatable :: orig_o(:), orig_n(:)
-            integer :: no, ns, i, nmf, nvf, own, n_isolated
+            integer :: no, ns, i, nmf, nvf, nrf, own, n_isolated
             logical :: ok, full_reach
             real(wp) :: h, reach, scale, mass_new
             character(len=200) :: text
@@ -849,7 +851,7 @@ contains
                 own = p%n_owned
                 p%n_ghost = 0
                 p%n_total = own
-                call transfer_finish(dim, own, acc, p%m, p%v, p%rho, p%e, st, text, nvf)
+                call transfer_finish(dim, own, acc, p%m, p%v, p%rho, p%e, st, text, nvf, nrf)
                 ok = agreed_status(env, st) == 0
             end if
             if (.not. ok) then
@@ -862,6 +864,7 @@ contains
             end if
             report%n_mass_fallback = int(global_sum(env, int(nmf, i8)))
             report%n_velocity_fallback = int(global_sum(env, int(nvf, i8)))
+            report%n_density_fallback = int(global_sum(env, int(nrf, i8)))
             report%n_isolated = int(global_sum(env, int(n_isolated, i8)))
             mass_new = global_sum(env, accurate_sum(p%m(1:own)))
             if (present(solids)) then

@@ -376,10 +376,10 @@ contains
             ' us per particle): new positions', stages(1), ' s, transfer', stages(2), &
             ' s, walls and neighbours', stages(3), ' s'
         call log_info(trim(line))
-        write(line, '(a,i0,a,i0,a,i0,a,i0,a,i0)') '  irregular cells ', report%n_irregular, &
-            ', transfer fallbacks: mass ', report%n_mass_fallback, ' (isolated ', &
-            report%n_isolated, '), velocity ', report%n_velocity_fallback, &
-            '; relaxation passes ', report%relax_passes
+        write(line, '(a,i0,a,i0,a,i0,a,i0,a,i0,a,i0)') '  irregular cells ', &
+            report%n_irregular, ', transfer fallbacks: mass ', report%n_mass_fallback, &
+            ' (isolated ', report%n_isolated, '), velocity ', report%n_velocity_fallback, &
+            ', density ', report%n_density_fallback, '; relaxation passes ', report%relax_passes
         call log_info(trim(line))
         if (report%n_in_gaps > 0) then
             write(line, '(a,i0,a,f0.1,a)') '  narrow gaps: ', report%n_in_gaps, ' fluid ' // &
