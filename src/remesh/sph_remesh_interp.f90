@@ -479,12 +479,7 @@ contains
                 t2(1:dim, 1:dim) = reshape(acc(r0 + dim + 1:r0 + dim + dim * dim, j), &
                     [dim, dim])
                 g = 0.0_wp
-                if (dim == 2) then
-                    call solve_2x2(t2(1, 1), t2(1, 2), t2(2, 1), t2(2, 2), -t1(1), -t1(2), &
-                        g(1), g(2), good)
-                else
-                    call solve_small(dim, t2, -t1, g, good)
-                end if
+                call solve_small(dim, t2, -t1, g, good)
                 if (good) good = t0 + dot_product(g(1:dim), t1(1:dim)) > 0.5_wp * t0
                 if (.not. good) then
                     n_rho_fallback = n_rho_fallback + 1
