@@ -110,7 +110,8 @@ module sph_remesh_driver
     use sph_remesh_relax, only: relax_displacements, relax_list_t, RELAX_PASSES, RELAX_H_FACTOR, &
         RELAX_TOLERANCE
     use sph_coarsen, only: coarsen_select
-    use sph_remesh_interp, only: transfer_accumulate, transfer_finish, transfer_rows
+    use sph_remesh_interp, only: transfer_accumulate, transfer_finish, transfer_rows, &
+        transfer_unreached
     use sph_global_ids, only: assign_global_ids, global_max_id, id_order
     implicit none
     private
@@ -171,6 +172,8 @@ module sph_remesh_driver
         !> of the mass fallbacks, old particles with no new one in their support (each handed
         !> to its nearest, the transfer's ghosts then taken at the full reach)
         integer :: n_isolated = 0
+        !> new particles dropped because no old particle had them within its support
+        integer :: n_unreached = 0
         integer :: relax_passes = 0                  !< relaxation passes made
         !> same level: fluid particles left as they were in narrow gaps (module header)
         integer :: n_in_gaps = 0
@@ -801,8 +804,8 @@ contains
             type(particles_t) :: old, others
             type(halo_t) :: halo
             real(wp), allocatable :: xo(:, :), xs(:, :), acc(:, :), reach_new(:), vo(:, :)
-            integer, allocatable :: orig_o(:), orig_n(:)
-            integer :: no, ns, i, nmf, nvf, nrf, own, n_isolated
+            integer, allocatable :: orig_o(:), orig_n(:), keep(:)
+            integer :: no, ns, i, nmf, nvf, nrf, own, n_isolated, n_unreached
             logical :: ok, full_reach
             real(wp) :: h, reach, scale, mass_new
             character(len=200) :: text
@@ -871,6 +874,15 @@ contains
             if (ok) then
                 call halo_reverse_sum(halo, env, p%n_owned, acc)
                 own = p%n_owned
+                ! points the construction put where no fluid is go (transfer_unreached)
+                keep = pack([(i, i = 1, own)], .not. transfer_unreached(own, acc))
+                n_unreached = own - size(keep)
+                if (n_unreached > 0) then
+                    call particles_gather(p, keep)
+                    acc(:, 1:size(keep)) = acc(:, keep)
+                    own = size(keep)
+                    p%n_owned = own
+                end if
                 p%n_ghost = 0
                 p%n_total = own
                 call transfer_finish(dim, own, acc, p%m, p%v, p%rho, p%e, st, text, nvf, nrf)
@@ -888,6 +900,7 @@ contains
             report%n_velocity_fallback = int(global_sum(env, int(nvf, i8)))
             report%n_density_fallback = int(global_sum(env, int(nrf, i8)))
             report%n_isolated = int(global_sum(env, int(n_isolated, i8)))
+            report%n_unreached = int(global_sum(env, int(n_unreached, i8)))
             mass_new = global_sum(env, accurate_sum(p%m(1:own)))
             if (present(solids)) then
                 ! the mirrors' exchange is symmetric only for plane walls: restore the total

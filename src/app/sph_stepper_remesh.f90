@@ -381,6 +381,11 @@ contains
             ' (isolated ', report%n_isolated, '), velocity ', report%n_velocity_fallback, &
             ', density ', report%n_density_fallback, '; relaxation passes ', report%relax_passes
         call log_info(trim(line))
+        if (report%n_unreached > 0) then
+            write(line, '(a,i0,a)') '  dropped ', report%n_unreached, ' new point(s) with ' // &
+                'no fluid within the support (a fluid-free slot between solids)'
+            call log_info(trim(line))
+        end if
         if (report%n_in_gaps > 0) then
             write(line, '(a,i0,a,f0.1,a)') '  narrow gaps: ', report%n_in_gaps, ' fluid ' // &
                 'particles left as they were (solids facing each other less than ', &

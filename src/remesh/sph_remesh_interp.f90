@@ -73,6 +73,7 @@ module sph_remesh_interp
     implicit none
     private
     public :: remesh_transfer, transfer_accumulate, transfer_finish, transfer_rows
+    public :: transfer_unreached
 
     !> The first rows of a column (transfer_accumulate): mass, m e and volume handed on, the
     !> velocity interpolant's s0; then s1 (dim), va (dim), s2 (dim^2), vb (dim^2); then the
@@ -355,6 +356,17 @@ contains
             found = best /= 0
         end subroutine nearest_new
     end subroutine transfer_accumulate
+
+    !> The new particles 1..n whose columns acc(:, 1:n) received nothing: no old particle or
+    !> mirror has them within its support. The construction can put a point where no fluid
+    !> is (its images fill a fluid-free slot between two bodies); every pair hands on a
+    !> positive share, so dropping such a particle changes no total.
+    pure function transfer_unreached(n, acc) result(unreached)
+        integer, intent(in) :: n
+        real(wp), intent(in) :: acc(:, :)
+        logical :: unreached(n)
+        unreached = .not. (acc(A_M, 1:n) > 0.0_wp .or. acc(A_VOL, 1:n) > 0.0_wp)
+    end function transfer_unreached
 
     !> Mass, energy, density and the corrected velocity interpolant of the new particles
     !> 1..n from their columns acc(:, 1:n) (transfer_accumulate, every old particle's sums
