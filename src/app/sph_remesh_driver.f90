@@ -88,7 +88,7 @@ module sph_remesh_driver
     use sph_halo, only: halo_t, halo_setup, halo_build, halo_reverse_sum
     use sph_solids, only: solids_t
     use sph_remesh_images, only: relative_to, mirror_shifts, with_mirrors
-    use sph_remesh_positions, only: new_set_t, new_set_start, set_aside_gaps, new_positions, &
+    use sph_remesh_positions, only: new_set_t, new_set_init, set_aside_gaps, new_positions, &
         finish_same_level, into_id_order, REMESH_NONE, REMESH_REFINE, REMESH_COARSEN, &
         REMESH_SAME, NARROW_GAP
     use sph_remesh_interp, only: transfer_accumulate, transfer_finish, transfer_rows, &
@@ -215,7 +215,7 @@ contains
         base = global_max_id(env, p%id, p%n_owned)
 
         call gather_positions(env, p, fluid, set%n, set%x, set%ids)
-        call new_set_start(set, mode, dim, dx, box_lo, box_hi, periodic, solids)
+        call new_set_init(set, mode, dim, dx, box_lo, box_hi, periodic, solids)
         ! same level: the particles of narrow gaps last in set%x, left out of the construction
         if (env%rank == 0 .and. mode == REMESH_SAME) call set_aside_gaps(set)
         report%n_in_gaps = int(global_max(env, int(set%n - set%n_src, i8)))

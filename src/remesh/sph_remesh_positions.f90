@@ -2,7 +2,7 @@
 !> that sph_refine's construction and sph_coarsen's selection leave to their caller, for the
 !> set of every fluid position that sph_remesh_driver gathers on rank 0 (its header says why
 !> on one rank). No MPI here. A remesh goes through
-!>  1. new_set_start (the gathered positions and ids in set%x, set%ids, set%n);
+!>  1. new_set_init (the gathered positions and ids in set%x, set%ids, set%n);
 !>  2. set_aside_gaps (same level): the particles of narrow gaps moved to the end;
 !>  3. new_positions: refine (construction, wall rule, relaxation of a clumped set; set%idn
 !>     then holds the refinement keys, two per point), coarsen (the whole selection, set%idn
@@ -44,7 +44,7 @@ module sph_remesh_positions
     use sph_global_ids, only: id_order   ! the stable id sort (no communication)
     implicit none
     private
-    public :: new_set_t, new_set_start, set_aside_gaps, new_positions, finish_same_level
+    public :: new_set_t, new_set_init, set_aside_gaps, new_positions, finish_same_level
     public :: into_id_order
     public :: REMESH_NONE, REMESH_REFINE, REMESH_COARSEN, REMESH_SAME, NARROW_GAP
 
@@ -101,7 +101,7 @@ contains
 
     !> Ready set (whose x, ids and n hold the old fluid) for a remesh of the given mode:
     !> no particle set aside, an empty new set.
-    subroutine new_set_start(set, mode, dim, dx, box_lo, box_hi, periodic, solids)
+    subroutine new_set_init(set, mode, dim, dx, box_lo, box_hi, periodic, solids)
         type(new_set_t), intent(inout) :: set
         integer, intent(in) :: mode, dim
         real(wp), intent(in) :: dx, box_lo(3), box_hi(3)
@@ -122,7 +122,7 @@ contains
         set%n_new = 0
         set%n_irregular = 0
         set%relax_passes = 0
-    end subroutine new_set_start
+    end subroutine new_set_init
 
     !> Same level, after the caller has turned the refinement keys into ids: back to the
     !> count the fluid had (the fill pass of sph_coarsen), with the first row about half a
