@@ -1,12 +1,12 @@
 !> Stable sort of indices by integer keys compared lexicographically (signed), shared by
 !> the remeshing rules whose results must not depend on the storage order (sph_refine,
-!> sph_coarsen) and the parallel sort of the global ids (sph_global_ids). An unsigned 64-bit
-!> key u is given as ieor(u, ibset(0_i8, 63)).
+!> sph_coarsen), the parallel sort of the global ids (sph_global_ids) and the id order of a
+!> particle set (id_order). An unsigned 64-bit key u is given as ieor(u, ibset(0_i8, 63)).
 module sph_key_sort
     use sph_kinds, only: i8
     implicit none
     private
-    public :: sort_by_keys
+    public :: sort_by_keys, id_order
 
     !> Flipped in every key for the radix passes: unsigned digits then sort in signed order.
     integer(i8), parameter :: SIGN_BIT = ishft(1_i8, 63)
@@ -108,6 +108,17 @@ contains
             end do
         end subroutine scatter
     end subroutine sort_by_keys
+
+    !> order(1:n) such that ids(order(1:n)) increases (stable): the storage order that the
+    !> remeshing and the set-up make independent of the rank count.
+    subroutine id_order(ids, n, order)
+        integer(i8), intent(in) :: ids(:)
+        integer, intent(in) :: n
+        integer, intent(out) :: order(:)
+        integer :: i
+        order(1:n) = [(i, i = 1, n)]
+        call sort_by_keys(reshape(ids(1:n), [1, n]), order(1:n))
+    end subroutine id_order
 
     pure logical function less(p, q)
         integer(i8), intent(in) :: p(:), q(:)

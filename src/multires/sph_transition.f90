@@ -65,7 +65,7 @@ module sph_transition
     use sph_refine, only: refine_positions
     use sph_remesh_images, only: with_periodic_images
     use sph_coarsen, only: coarsen_select, id_hash
-    use sph_global_ids, only: id_order   ! the stable id sort (no communication)
+    use sph_key_sort, only: id_order   ! the stable id sort (serial)
     use sph_cell_list, only: neighbour_list_t, build_cross_list, build_neighbour_list
     use sph_solids, only: solids_t, solid_distance, solid_normal, SOLID_PLANE
     use sph_interpolation_kernels, only: INTERP_M4, interp_weight, interp_support, m4_bspline

@@ -12,7 +12,7 @@
 module sph_global_ids
     use mpi_f08
     use sph_kinds, only: i8
-    use sph_key_sort, only: sort_by_keys
+    use sph_key_sort, only: sort_by_keys, id_order   ! id_order: re-exported (serial)
     use sph_errors, only: check_mpi, fatal_abort
     use sph_mpi_env, only: mpi_env_t, mpi_i8, global_max, global_sum, exclusive_scan_i8
     implicit none
@@ -205,18 +205,6 @@ contains
         smallest = -global_max(env, -local_smallest)
         if (n_duplicates == 0) smallest = 0
     end subroutine find_duplicate_ids
-
-    !> order(1:n) such that ids(order(1:n)) increases (stable; no communication).
-    subroutine id_order(ids, n, order)
-        integer(i8), intent(in) :: ids(:)
-        integer, intent(in) :: n
-        integer, intent(out) :: order(:)
-        integer(i8), allocatable :: keys(:, :)
-        allocate(keys(2, max(n, 1)))
-        keys = 0
-        keys(1, 1:n) = ids(1:n)
-        call sort_keys(keys, n, order)
-    end subroutine id_order
 
     !> Lexicographic order of key pairs.
     pure logical function key_less(a, b)

@@ -41,7 +41,7 @@ module sph_remesh_positions
     use sph_remesh_relax, only: relax_displacements, relax_list_t, RELAX_PASSES, RELAX_H_FACTOR, &
         RELAX_TOLERANCE
     use sph_coarsen, only: coarsen_select
-    use sph_global_ids, only: id_order   ! the stable id sort (no communication)
+    use sph_key_sort, only: id_order   ! the stable id sort (serial)
     implicit none
     private
     public :: new_set_t, new_set_init, set_aside_gaps, new_positions, finish_same_level
@@ -78,7 +78,8 @@ module sph_remesh_positions
 
     !> The old positions and the new set of one remesh.
     type :: new_set_t
-        integer :: mode = REMESH_NONE, dim = 0
+        integer :: mode = REMESH_NONE              !< REMESH_REFINE, _COARSEN or _SAME
+        integer :: dim = 0                         !< 2 or 3
         real(wp) :: dx = 0.0_wp                    !< the old spacing
         real(wp) :: box_lo(3) = 0.0_wp, box_hi(3) = 0.0_wp
         logical :: periodic(3) = .false.
@@ -248,9 +249,9 @@ contains
         integer :: n_kept
         character(len=200) :: text
         text = ''
-        call coarsen_select(set%dim, set%n_new, set%xn, set%idn, dxs, n_kept, kept, tag, st, text, &
-            algorithm_box(set, dxs), n_target=n_target, follow_spacing=set%mode == REMESH_COARSEN, &
-            n_disordered=n_disordered)
+        call coarsen_select(set%dim, set%n_new, set%xn, set%idn, dxs, n_kept, kept, tag, st, &
+            text, algorithm_box(set, dxs), n_target=n_target, &
+            follow_spacing=set%mode == REMESH_COARSEN, n_disordered=n_disordered)
         if (st /= 0) then
             msg = trim(text)
             return
@@ -488,7 +489,8 @@ contains
             keep(a) = .not. in_narrow_gap(set, set%xn(:, a))
         end do
         ! the gap's particles are the list's rows, the new points its candidates
-        y = reshape([set%x(:, set%n_src + 1:set%n), set%xn(:, 1:set%n_new)], [3, n_gap + set%n_new])
+        y = reshape([set%x(:, set%n_src + 1:set%n), set%xn(:, 1:set%n_new)], &
+            [3, n_gap + set%n_new])
         call with_images(set%dim, set%box_lo, set%box_hi, set%periodic, n_gap + set%n_new, y, &
             GAP_CLEAR * set%dx, yi, orig, ny)
         call build_neighbour_list(yi, ny, n_gap, set%dim, GAP_CLEAR * set%dx, near)
