@@ -1,7 +1,8 @@
 !> The parallel side of full-domain remeshing (thesis sec. 3.2, issue 10): refine, coarsen or
 !> same-level remeshing of every fluid particle of a particle set spread over the ranks. The
-!> algorithms are the serial ones of src/remesh (no MPI there): sph_refine for the new
-!> positions, sph_coarsen for the kept set, sph_remesh_interp for the conservative transfer.
+!> algorithms are the serial ones of src/remesh (no MPI there): sph_remesh_positions (with
+!> sph_refine and sph_coarsen) for the new positions and the kept set, sph_remesh_interp for
+!> the conservative transfer.
 !>
 !> Layout. The new POSITIONS are made on rank 0 from every fluid particle's position and id
 !> (gathered there, 32 bytes a particle), as ONE set with the periodic box; the FIELDS are
@@ -32,8 +33,10 @@
 !> accumulates, from the old particles it owns, into its new particles and their ghosts
 !> (transfer_accumulate: an old particle's weights are normalised over every new particle
 !> within 2 h, all of which it sees, and an isolated one hands everything to the nearest
-!> within 4 h); the ghosts' columns are added to their owners' (halo_reverse_sum), and each
-!> rank finishes its own new particles (transfer_finish). Every old-new pair within the
+!> within 4 h); the ghosts' columns are added to their owners' (halo_reverse_sum), a new
+!> particle whose column received nothing is dropped (transfer_unreached: no pair reached it,
+!> so no total changes; the column is exactly zero on any rank count), and each rank
+!> finishes its own new particles (transfer_finish). Every old-new pair within the
 !> support is counted once, as by one rank over the periodic box; sums come in another order
 !> on another rank count (or another set of ghosts), so the fields agree across rank counts
 !> to round-off (the positions and ids exactly). Momentum: one uniform correction over all
@@ -180,7 +183,8 @@ contains
     !> stat /= 0 (the same on every rank) when the algorithms refuse the set; p then holds the
     !> particles it had (the fluid perhaps on other ranks). solids: the walls and bodies
     !> (absolute coordinates), for sph_refine's wall rule and the mirrored transfer (module
-    !> header); without them the walls are ignored.
+    !> header); without them the walls are ignored. A new point that no old particle reaches
+    !> (none has it within its support) is dropped and counted (report%n_unreached).
     subroutine remesh_fluid(env, mode, dim, dx, box_lo, box_hi, periodic, h_new, p, report, &
             stat, errmsg, solids, all_ghosts)
         type(mpi_env_t), intent(in) :: env
@@ -230,7 +234,7 @@ contains
         if (env%rank == 0 .and. my_stat == 0) call into_id_order(set%xn, set%idn, set%n_new)
         if (refused()) return
         ! rank 0 made the set: every rank reports its figures
-        report%n_irregular = set%n_irregular
+        report%n_irregular = int(global_max(env, int(set%n_irregular, i8)))
         report%relax_passes = int(global_max(env, int(set%relax_passes, i8)))
         t_transfer = MPI_Wtime()
         report%seconds_positions = global_max(env, t_transfer - t0)

@@ -383,8 +383,13 @@ contains
         call log_info(trim(line))
         if (report%n_unreached > 0) then
             write(line, '(a,i0,a)') '  dropped ', report%n_unreached, ' new point(s) with ' // &
-                'no fluid within the support (a fluid-free slot between solids)'
+                'no fluid within the support (e.g. in a slot between solids that holds none)'
             call log_info(trim(line))
+            ! (a transfer that missed pairs would drop points too: say it once, loudly)
+            if (logger_is_root()) call log_warn_counted('remesh_unreached', 'remesh: ' // &
+                'new points that no old fluid particle reaches were dropped (the totals ' // &
+                'are unchanged); expected only where the set-up left a region between ' // &
+                'solids without fluid')
         end if
         if (report%n_in_gaps > 0) then
             write(line, '(a,i0,a,f0.1,a)') '  narrow gaps: ', report%n_in_gaps, ' fluid ' // &

@@ -358,14 +358,16 @@ contains
     end subroutine transfer_accumulate
 
     !> The new particles 1..n whose columns acc(:, 1:n) received nothing: no old particle or
-    !> mirror has them within its support. The construction can put a point where no fluid
-    !> is (its images fill a fluid-free slot between two bodies); every pair hands on a
-    !> positive share, so dropping such a particle changes no total.
+    !> mirror has them within its support. The construction can put a point at the mouth of
+    !> a slot that holds no fluid, and the relaxation push it deeper; every pair hands on a
+    !> positive mass and volume (non-negative weights), so such a column is exactly zero and
+    !> dropping its particle changes no total. (A negative or NaN column is not unreached:
+    !> transfer_finish refuses it.)
     pure function transfer_unreached(n, acc) result(unreached)
         integer, intent(in) :: n
         real(wp), intent(in) :: acc(:, :)
         logical :: unreached(n)
-        unreached = .not. (acc(A_M, 1:n) > 0.0_wp .or. acc(A_VOL, 1:n) > 0.0_wp)
+        unreached = abs(acc(A_M, 1:n)) <= 0.0_wp .and. abs(acc(A_VOL, 1:n)) <= 0.0_wp
     end function transfer_unreached
 
     !> Mass, energy, density and the corrected velocity interpolant of the new particles
