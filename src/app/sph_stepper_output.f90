@@ -51,7 +51,8 @@ contains
     module procedure checkpoint_balance
         ! (left unallocated: not present)
         if (multires(sim) .and. allocated(sim%level_push)) balance = [sim%reference_mass, &
-            reshape(sim%level_push, [size(sim%level_push)]), sim%level_push_mass]
+            reshape(sim%level_push, [size(sim%level_push)]), sim%level_push_mass, &
+            sim%zone_drift]
     end procedure checkpoint_balance
 
     module procedure simulation_solid_forces

@@ -138,13 +138,17 @@ contains
             path, stat, errmsg)
         if (stat /= 0) call fatal_collective(what, errmsg)
         ! the levels' balance as the checkpointed run had it (the reference mass, and for
-        ! sub-cycled levels the pushes of the levels not evaluated at the next step)
+        ! sub-cycled levels the pushes of the levels not evaluated at the next step), and
+        ! the zones' drift (checkpoints written before it was kept: none, the zones then
+        ! made at the next rebuild as before)
         n = sim%zones%n_levels
-        if (multires(sim) .and. size(balance) == 1 + 4 * n) then
+        if (multires(sim) .and. (size(balance) == 1 + 4 * n .or. &
+                size(balance) == 2 + 4 * n)) then
             sim%reference_mass = balance(1)
             allocate(sim%level_push(3, 0:n - 1), sim%level_push_mass(0:n - 1))
             sim%level_push(:, :) = reshape(balance(2:1 + 3 * n), [3, n])
-            sim%level_push_mass(:) = balance(2 + 3 * n:)
+            sim%level_push_mass(:) = balance(2 + 3 * n:1 + 4 * n)
+            if (size(balance) == 2 + 4 * n) sim%zone_drift = balance(2 + 4 * n)
         end if
         ! the input the checkpoint was written with: a Verlet run's rates are those its next
         ! step starts from (a verlet continuation takes them, bit for bit; any other

@@ -53,8 +53,9 @@ contains
         integer, intent(out) :: stat
         character(len=:), allocatable, intent(out) :: errmsg
         real(wp), intent(in), optional :: dx
-        !> a multi-resolution run's balance of its levels (sph_stepper: the reference mass
-        !> and each level's last virtual push), stored as 'checkpoint/level_balance'
+        !> a multi-resolution run's balance of its levels (sph_stepper: the reference mass,
+        !> each level's last virtual push, the zones' drift), stored as
+        !> 'checkpoint/level_balance'
         real(wp), intent(in), optional, contiguous :: balance(:)
         type(h5_file_t) :: file
         integer :: n, n_tree, k
