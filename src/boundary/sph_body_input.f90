@@ -68,7 +68,8 @@ contains
         call grp%get_real_array('hi', body%hi, 0.0_wp, unit='m', &
             doc='upper corner of a rectangle or box')
         call grp%get_real_array('velocity', body%velocity, 0.0_wp, unit='m/s', &
-            doc='velocity of the body''s wall particles (they keep their place)')
+            doc='velocity of the body''s wall particles (they keep their place): 0, ' // &
+            'or along a cylinder''s axis')
         if (len_trim(body%name) == 0) body%name = 'body ' // itoa(grp%instance)
 
         dim = min(max(dom%dimension, 2), 3)
@@ -108,6 +109,33 @@ contains
                 end if
             end do
         end if
+        ! the body keeps its place: its wall particles may move only along its surface. No
+        ! body but a cylinder (along its axis) has a direction all of its surface shares (a
+        ! body is narrower than the box on every other axis): any other velocity would push
+        ! fluid through the surface, which nothing supplies (a circle moving across the flow
+        ! at 1e-4 m/s: densities 805..1416 kg/m^3 within 0.3 s under Verlet)
+        do a = 1, dim
+            if (trim(body%shape) == 'cylinder') then
+                if (achar(iachar('x') + a - 1) == body%axis) cycle
+            end if
+            if (abs(body%velocity(a)) > 0.0_wp) then
+                if (trim(body%shape) == 'cylinder') then
+                    call grp%error('velocity(' // itoa(a) // ')', 'must be 0: the body ' // &
+                        'keeps its place and its surface may move only along itself, so a ' // &
+                        'cylinder may slide along its axis (' // body%axis // ') only')
+                else if (dim == 3) then
+                    call grp%error('velocity(' // itoa(a) // ')', 'must be 0: the body ' // &
+                        'keeps its place and its surface may move only along itself; no ' // &
+                        'direction runs along all of a ' // trim(body%shape) // &
+                        "'s surface (a cylinder may slide along its axis)")
+                else
+                    call grp%error('velocity(' // itoa(a) // ')', 'must be 0: the body ' // &
+                        'keeps its place and its surface may move only along itself; no ' // &
+                        'direction runs along all of a ' // trim(body%shape) // "'s surface")
+                end if
+                return
+            end if
+        end do
         ! the body in the box: across periodic faces only, never into a wall, never wider
         ! than its own periodic image's distance
         do a = 1, dim
