@@ -110,13 +110,16 @@ module sph_stepper
         !> &refinement conserve (sph_level_balance): the total real mass the transition
         !> updates hold (the fluid's at set-up, or the checkpoint's), each level's last
         !> virtual push (xyz) and mass of real particles next to virtual ones, which
-        !> particles those are (marked for each neighbour list), and for the log the mass
+        !> particles those are (marked at each evaluation), and for the log the mass
         !> the rescales put back and the push removed (summed over the rate evaluations,
         !> and their count) since its last line
         real(wp) :: reference_mass = 0.0_wp
         real(wp), allocatable :: level_push(:, :), level_push_mass(:)
         logical, allocatable :: near_virtual(:)
-        integer :: near_virtual_list = -1   !< the neighbour list's generation they are of
+        !> the particles that can come next to a virtual one while the list lasts, and the
+        !> neighbour list's generation they are of
+        logical, allocatable :: near_virtual_candidates(:)
+        integer :: near_virtual_list = -1
         real(wp) :: mass_restored = 0.0_wp
         real(wp) :: push_removed(3) = 0.0_wp
         integer(i8) :: push_evaluations = 0

@@ -159,6 +159,20 @@ contains
         ! offline remesh changed to beside it (a restart must give that one: refused below)
         if (stat == 0 .and. stored_dx > 0.0_wp) stored%domain%dx = stored_dx
         sim%rates_stale = .true.
+        ! a stored input this version refuses (written before a rule was added): the given
+        ! input cannot be checked against it, so a uniform state gets the given input's
+        ! walls and bodies (a circle's refused velocity went on, unchecked and unsaid)
+        if (stat /= 0) then
+            errmsg = "the input stored in '" // path // "' is refused by this version (" // &
+                one_line(errmsg) // ')'
+            if (multires(sim)) call fatal_collective(what, errmsg // ': a multi-resolution ' // &
+                'state cannot be checked against the given input, nor its walls laid again; ' // &
+                'continue it with the version that wrote it')
+            call log_warn(what // ': ' // errmsg // '; the given ' // &
+                'input is not checked against it (geometry, rest density): make sure it ' // &
+                'describes the same problem')
+            walls_changed = 'the walls and bodies of a stored input this version refuses'
+        end if
         if (stat == 0) then
             sim%rates_stale = trim(stored%numerics%integrator) /= 'verlet'
             mismatch = geometry_mismatch(stored, cfg)
@@ -238,6 +252,35 @@ contains
             'from the one stored in the checkpoint; the new input is used')
         call log_setup(sim, env)
     end procedure simulation_restart
+
+    !> text on one line: its line breaks and the indents after them become '; ' (' ' after a
+    !> colon)
+    pure function one_line(text) result(line)
+        character(len=*), intent(in) :: text
+        character(len=:), allocatable :: line
+        integer :: k
+        line = ''
+        k = 1
+        do while (k <= len(text))
+            if (text(k:k) == new_line('a')) then
+                if (len(line) > 0) then
+                    if (line(len(line):len(line)) == ':') then
+                        line = line // ' '
+                    else
+                        line = line // '; '
+                    end if
+                end if
+                k = k + 1
+                do while (k <= len(text))
+                    if (text(k:k) /= ' ') exit
+                    k = k + 1
+                end do
+            else
+                line = line // text(k:k)
+                k = k + 1
+            end if
+        end do
+    end function one_line
 
     !> The wall and body particles laid again for the input (a uniform state): the
     !> checkpoint's were laid for its own kernel support, wall model and wall velocities,

@@ -272,19 +272,25 @@ contains
         real(wp), allocatable :: supports(:)
         integer :: lv, n
         n = sim%zones%n_levels
-        ! the particles next to virtual ones, marked again for each new neighbour list
+        ! the particles next to virtual ones now (mark_near_virtual), among those that can
+        ! be while the neighbour list lasts, marked again for each new list
+        ! (the supports copied first: the strided section was a temporary that Debug
+        ! builds warn about at every new list)
+        supports = sim%level_phys(:)%kernel%support
         if (sim%near_virtual_list /= sim%nl%generation) then
             if (allocated(sim%near_virtual)) then
-                if (size(sim%near_virtual) < sim%p%n_owned) deallocate(sim%near_virtual)
+                if (size(sim%near_virtual) < sim%p%n_owned) &
+                    deallocate(sim%near_virtual, sim%near_virtual_candidates)
             end if
             if (.not. allocated(sim%near_virtual)) &
-                allocate(sim%near_virtual(max(sim%p%n_owned, 1)))
-            ! (the supports copied first: the strided section was a temporary that Debug
-            ! builds warn about at every new list)
-            supports = sim%level_phys(:)%kernel%support
-            call mark_near_virtual(sim%p, sim%nl, supports, sim%near_virtual)
+                allocate(sim%near_virtual(max(sim%p%n_owned, 1)), &
+                sim%near_virtual_candidates(max(sim%p%n_owned, 1)))
+            call mark_near_virtual(sim%p, sim%nl, supports + sim%list_skin, &
+                sim%near_virtual_candidates)
             sim%near_virtual_list = sim%nl%generation
         end if
+        call mark_near_virtual(sim%p, sim%nl, supports, sim%near_virtual, &
+            sim%near_virtual_candidates)
         sums = 0.0_wp
         do lv = 0, n - 1
             if (.not. active(lv)) cycle

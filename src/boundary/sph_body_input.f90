@@ -133,7 +133,7 @@ contains
                         'keeps its place and its surface may move only along itself; no ' // &
                         'direction runs along all of a ' // trim(body%shape) // "'s surface")
                 end if
-                return
+                exit   ! (one velocity message; the body's other checks go on)
             end if
         end do
         ! the body in the box: across periodic faces only, never into a wall, never wider

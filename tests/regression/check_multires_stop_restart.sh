@@ -4,23 +4,30 @@
 # ends, to round-off (1e-12 of each field's largest value). The checkpoint's rebuild must
 # not move the transition zones' updates: when it did, the two ended 4e-3 of the peak
 # speed apart.
-# usage: check_multires_stop_restart.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM INPUT WORKDIR PYTHON COMPARER
+# usage: check_multires_stop_restart.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM INPUT WORKDIR PYTHON COMPARER [STOP]
+# STOP: the step to stop at (default 60)
 set -u
 mpiexec=$1 np_flag=$2 np=$3 extra=$4 program=$5 input=$6 work=$7 python=$8 comparer=$9
+stop=${10:-60}
 run() { "$mpiexec" "$np_flag" "$np" $extra "$program" "$@"; }
 rm -rf "$work" && mkdir -p "$work/straight" "$work/stopped" || exit 1
 
 cd "$work/straight" && run "$input" > log 2>&1 || {
     echo "the uninterrupted run failed:"; cat log; exit 1; }
 cd "$work/stopped"
-sed 's/^&run$/\&run\n    max_steps = 60/' "$input" > stop.nml
-grep -q 'max_steps = 60' stop.nml || { echo "could not lower max_steps"; exit 1; }
+if grep -q '^ *max_steps *=' "$input"; then
+    sed "s/^\( *max_steps *= *\).*/\1$stop/" "$input" > stop.nml
+else
+    sed "s/^&run\$/\&run\n    max_steps = $stop/" "$input" > stop.nml
+fi
+grep -q "max_steps = $stop\$" stop.nml || { echo "could not lower max_steps"; exit 1; }
 run stop.nml > log 2>&1 || { echo "the stopped run failed:"; cat log; exit 1; }
-ls out/*_checkpoint_000060.h5 > /dev/null 2>&1 || { echo "no checkpoint at step 60"; exit 1; }
+ls out/*_checkpoint_$(printf %06d "$stop").h5 > /dev/null 2>&1 || {
+    echo "no checkpoint at step $stop"; exit 1; }
 run "$input" --restart out > restart.log 2>&1 || {
     echo "the continued run failed:"; cat restart.log; exit 1; }
 final=$(cd "$work/straight/out" && ls *_0*.h5 | grep -v checkpoint | sort | tail -1)
 [ -e "out/$final" ] || { echo "the continued run has no $final"; exit 1; }
 "$python" "$comparer" --tolerance 1e-12 "$work/straight/out/$final" "out/$final" || {
     echo "the continued run departs from the uninterrupted one"; exit 1; }
-echo "stopped at step 60, continued to $final: within 1e-12"
+echo "stopped at step $stop, continued to $final: within 1e-12"
