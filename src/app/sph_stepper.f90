@@ -862,6 +862,7 @@ contains
         logical, intent(in), optional :: subcycled
         real(wp), intent(in), optional :: moved
         real(wp) :: step_move
+        logical :: zones_reached
         if (present(moved)) then
             step_move = global_max(env, moved)
         else
@@ -882,10 +883,9 @@ contains
         ! the list's does in a run that writes nothing (a stopped and restarted
         ! multi-resolution run departed from the uninterrupted one by 4e-3 of its peak speed
         ! when the zones followed the rebuilds of the checkpoint before)
-        if (multires(sim) .and. .not. sim%zones_due .and. &
-            2.0_wp * sim%zone_drift >= 0.5_wp * sim%list_skin) sim%drift = &
-            max(sim%drift, sim%zone_drift)
-        if (2.0_wp * sim%drift < 0.5_wp * sim%list_skin) then
+        zones_reached = multires(sim) .and. .not. sim%zones_due .and. &
+            2.0_wp * sim%zone_drift >= 0.5_wp * sim%list_skin
+        if (2.0_wp * sim%drift < 0.5_wp * sim%list_skin .and. .not. zones_reached) then
             ! the sub-cycled step reads no ghost field before its next drift refreshes them
             ! (a zone update or a rebalance builds the halo anew)
             if (.not. present(subcycled)) call refresh_ghosts(sim, env, moved_fields(sim))

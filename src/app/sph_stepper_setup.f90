@@ -5,6 +5,7 @@
 submodule (sph_stepper) sph_stepper_setup
     use sph_domain, only: domain_owner
     use sph_logger, only: log_warn, int_text, sci_text
+    use sph_text_lines, only: next_line
     implicit none
 
 contains
@@ -253,31 +254,24 @@ contains
         call log_setup(sim, env)
     end procedure simulation_restart
 
-    !> text on one line: its line breaks and the indents after them become '; ' (' ' after a
+    !> text on one line: its lines, their indents trimmed, joined by '; ' (by ' ' after a
     !> colon)
-    pure function one_line(text) result(line)
+    function one_line(text) result(joined)
         character(len=*), intent(in) :: text
-        character(len=:), allocatable :: line
-        integer :: k
-        line = ''
-        k = 1
-        do while (k <= len(text))
-            if (text(k:k) == new_line('a')) then
-                if (len(line) > 0) then
-                    if (line(len(line):len(line)) == ':') then
-                        line = line // ' '
-                    else
-                        line = line // '; '
-                    end if
-                end if
-                k = k + 1
-                do while (k <= len(text))
-                    if (text(k:k) /= ' ') exit
-                    k = k + 1
-                end do
+        character(len=:), allocatable :: joined, line
+        integer :: start
+        joined = ''
+        start = 1
+        do while (start <= len(text))
+            call next_line(text, start, line)
+            line = trim(adjustl(line))
+            if (len(line) == 0) cycle
+            if (len(joined) == 0) then
+                joined = line
+            else if (joined(len(joined):) == ':') then
+                joined = joined // ' ' // line
             else
-                line = line // text(k:k)
-                k = k + 1
+                joined = joined // '; ' // line
             end if
         end do
     end function one_line
