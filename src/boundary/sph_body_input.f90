@@ -136,6 +136,10 @@ contains
                 exit   ! (one velocity message; the body's other checks go on)
             end if
         end do
+        ! (a 2D flow has no third component: given, it moved nothing)
+        if (dim == 2 .and. abs(body%velocity(3)) > 0.0_wp .and. .not. &
+            any(abs(body%velocity(1:2)) > 0.0_wp)) call grp%error('velocity(3)', &
+            'must be 0: a 2D run (&domain dimension = 2) has no third velocity component')
         ! the body in the box: across periodic faces only, never into a wall, never wider
         ! than its own periodic image's distance
         do a = 1, dim
@@ -185,7 +189,8 @@ contains
     !> so a rectangle or box thinner than two supports (support: the kernel's at &domain dx)
     !> would hand the mirrors of one side to the fluid on the other, through the body: the
     !> result then also depended on the rank count (a 20 mm rectangle at dx = 5 mm on the
-    !> 2-rank cut: velocities next to it 6 % of the peak apart after one step).
+    !> 2-rank cut: velocities next to it 6 % of the peak apart after one step). Repulsive
+    !> walls alone (free slip) cannot move fluid: a body's velocity is refused with them.
     subroutine check_body_wall_model(grps, bodies, wall_model, dim, support)
         type(nml_group_t), intent(inout) :: grps(:)
         type(body_input_t), intent(in) :: bodies(:)
@@ -194,6 +199,16 @@ contains
         real(wp), intent(in) :: support
         character(len=32) :: have, need
         integer :: b, ax
+        ! repulsive walls push along the surface's normal only (free slip): a moving body's
+        ! wall particles would drag no fluid
+        if (trim(wall_model) == 'repulsive') then
+            do b = 1, size(bodies)
+                if (any(abs(bodies(b)%velocity) > 0.0_wp)) call grps(b)%error('velocity', &
+                    "must be 0 with &numerics wall_model = 'repulsive': repulsive walls " // &
+                    'push along their normal only (free slip) and drag no fluid; use ' // &
+                    "'morris' for a moving body")
+            end do
+        end if
         if (index(wall_model, 'mirror') == 0) return
         do b = 1, size(bodies)
             select case (trim(bodies(b)%shape))

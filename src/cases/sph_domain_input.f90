@@ -129,7 +129,42 @@ contains
                         'periodically and sit symmetrically between walls)')
             end if
         end do
+        call check_wall_velocities(grp, dom)
     end subroutine read_domain_input
+
+    !> The walls keep their place: a wall's particles may move only along its face (a
+    !> velocity across it drove the fluid of a closed channel through both plates at the
+    !> plate's speed, without a word). In 2D the third components and the z faces are not
+    !> there: a velocity given to them moved nothing.
+    subroutine check_wall_velocities(grp, dom)
+        type(nml_group_t), intent(inout) :: grp
+        type(domain_input_t), intent(in) :: dom
+        integer :: face, axis, dim
+        character(len=:), allocatable :: key
+        dim = min(max(dom%dimension, 2), 3)
+        do face = 1, n_faces
+            do axis = 1, 3
+                if (.not. abs(dom%wall_velocity(axis, face)) > 0.0_wp) cycle
+                key = 'wall_velocity(' // achar(iachar('0') + axis) // ',' // &
+                    achar(iachar('0') + face) // ')'
+                if (face > 2 * dim) then
+                    call grp%error(key, 'must be 0: a 2D run (dimension = 2) has no face ' // &
+                        trim(face_names(face)))
+                    exit
+                end if
+                ! (a periodic face's velocity is refused above)
+                if (dom%is_periodic((face + 1) / 2)) exit
+                if (axis > dim) then
+                    call grp%error(key, 'must be 0: a 2D run (dimension = 2) has no ' // &
+                        'third velocity component')
+                else if (axis == (face + 1) / 2) then
+                    call grp%error(key, 'must be 0: the wall of face ' // &
+                        trim(face_names(face)) // ' keeps its place, so it may move only ' // &
+                        'along itself (a velocity across it would push the fluid through it)')
+                end if
+            end do
+        end do
+    end subroutine check_wall_velocities
 
     !> Whether the box length on `axis` is a whole multiple of the spacing dx: a lattice of
     !> that spacing must close periodically and sit symmetrically between walls (the set-up's

@@ -170,6 +170,17 @@ contains
             cfg%numerics%wall_model, cfg%domain%dimension, kernel_support_at(cfg%domain%dx))
         if (sum(grp%n_errors) == 0) call check_moving_corners(grp(5), grp(4), cfg%domain, &
             cfg%numerics, cfg%fluid)
+        ! (a 2D flow has no third component: given, it moved nothing)
+        if (cfg%domain%dimension == 2 .and. abs(cfg%fluid%body_force(3)) > 0.0_wp) &
+            call grp(4)%error('body_force(3)', 'must be 0: a 2D run (&domain dimension = ' // &
+            '2) has no third component')
+        ! repulsive walls push along their normal only (free slip): moving walls drove no
+        ! fluid (a Couette flow stayed at rest, 100 % off the analytic solution)
+        if (trim(cfg%numerics%wall_model) == 'repulsive' .and. &
+            any(abs(cfg%domain%wall_velocity) > 0.0_wp)) call grp(5)%error('wall_model', &
+            "'repulsive' walls push along their normal only (free slip) and drag no " // &
+            "fluid, so the moving walls of &domain wall_velocity would move nothing; use " // &
+            "'morris', 'mirror' or 'repulsive_mirror'")
         if (sum(grp%n_errors) == 0) call check_analytic_channel(grp(1), cfg%run%analytic, &
             cfg%domain, cfg%fluid%body_force)
         ! (the references' series divide by the viscosity: nu = 0 trapped at the first snapshot)
