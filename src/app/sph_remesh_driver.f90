@@ -346,7 +346,7 @@ contains
                 allocate(acc(transfer_rows(dim), max(ns, 1)))
                 call transfer_accumulate(dim, h, no, xo, old%m(orig_o(1:no)), &
                     vo(:, 1:no), old%rho(orig_o(1:no)), old%e(orig_o(1:no)), ns, &
-                    xs, acc, st, text, nmf, n_isolated)
+                    xs, acc, st, text, nmf, n_isolated, p%id(orig_n(1:ns)))
                 if (full_reach .or. global_sum(env, int(n_isolated, i8)) == 0) exit
                 full_reach = .true.
             end do

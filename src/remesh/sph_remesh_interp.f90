@@ -67,7 +67,7 @@
 !> ghosts, add the ghosts' columns to their owners' (a reverse halo sum), finish its own new
 !> particles and correct momentum with global sums. remesh_transfer is the three in one.
 module sph_remesh_interp
-    use sph_kinds, only: wp
+    use sph_kinds, only: wp, i8
     use sph_cell_list, only: cell_grid_t, bin_particles, cell_runs
     use sph_interpolation_kernels, only: INTERP_M4, interp_support
     implicit none
@@ -147,9 +147,11 @@ contains
     !> with its own normalised, centroid-keeping weights; the velocity moments) added into
     !> acc(:, 1:n_new), one column per new particle x_new(:, k) (zeroed first). n_mass_fallback:
     !> old particles that fell back to lower order. stat 1: an old particle has no new
-    !> particle within 4 h.
+    !> particle within 4 h. id_new (optional): the new particles' global ids, which break an
+    !> exact tie of an isolated old particle's nearest new ones (else the first in storage
+    !> order, which depends on the rank count).
     subroutine transfer_accumulate(dim, h, n_old, x_old, m_old, v_old, rho_old, e_old, &
-            n_new, x_new, acc, stat, errmsg, n_mass_fallback, n_isolated)
+            n_new, x_new, acc, stat, errmsg, n_mass_fallback, n_isolated, id_new)
         integer, intent(in) :: dim, n_old, n_new
         real(wp), intent(in) :: h
         real(wp), intent(in) :: x_old(:, :), m_old(:), v_old(:, :), rho_old(:), e_old(:)
@@ -160,6 +162,7 @@ contains
         integer, intent(out) :: n_mass_fallback
         !> old particles with no new particle in their support (handed to the nearest one)
         integer, intent(out), optional :: n_isolated
+        integer(i8), intent(in), optional :: id_new(:)
         !> an isolated old particle's one pair: negligible in its target's velocity moments
         real(wp), parameter :: ISOLATED_WEIGHT = 1.0e-30_wp, ISOLATED_REACH = 4.0_wp
         ! the columns (per new particle, packed: a pair's updates touch a few cache lines of
@@ -334,21 +337,25 @@ contains
         !> with no new particle in its support: alone in a void of a developed flow, or next to
         !> a body whose first row the new set keeps off the surface). Farther, the sets do not
         !> match (a caller's error) and the particle is lost (stat 1). Brute force: such
-        !> particles are rare.
+        !> particles are rare. Of equally near ones, the one with the lowest id (id_new).
         subroutine nearest_new(jj, best, found)
             integer, intent(in) :: jj
             integer, intent(out) :: best
             logical, intent(out) :: found
             integer :: a
             real(wp) :: dd(3), d2, best_d2
+            logical :: tie
             best = 0
             best_d2 = (ISOLATED_REACH * h)**2
             do a = 1, n_new
                 dd = 0.0_wp
                 dd(1:dim) = x_new(1:dim, a) - x_old(1:dim, jj)
                 d2 = sum(dd * dd)
+                tie = .false.
+                if (best /= 0 .and. present(id_new)) &
+                    tie = abs(d2 - best_d2) <= 0.0_wp .and. id_new(a) < id_new(best)
                 ! the first strictly nearer one, or the first one within reach
-                if (d2 < best_d2 .or. (best == 0 .and. d2 <= best_d2)) then
+                if (d2 < best_d2 .or. (best == 0 .and. d2 <= best_d2) .or. tie) then
                     best_d2 = d2
                     best = a
                 end if
