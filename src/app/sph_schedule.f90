@@ -267,7 +267,7 @@ contains
         ! (the steps to t_end capped at max_steps' before the division: t_end / dt can
         ! overflow; sub-cycled levels may run up to max_subcycles - 1 steps past max_steps to
         ! end a step together, which is no time left, not a negative one)
-        remaining = per_step * real(max(sched%max_steps - sim%step, 0), wp)
+        remaining = per_step * real(max(sched%max_steps - sim%step, 0_i8), wp)
         if (sched%t_end - sim%time < real(sched%max_steps - sim%step, wp) * &
                 sim%last_limits%dt) remaining = per_step * max(0.0_wp, (sched%t_end - &
                 sim%time) / max(sim%last_limits%dt, tiny(1.0_wp)))
