@@ -14,12 +14,13 @@
 module sph_particle_file
     use sph_kinds, only: wp, i4, i8
     use sph_config, only: config_t
-    use sph_mpi_env, only: mpi_env_t, agreed_status
+    use sph_mpi_env, only: mpi_env_t, agreed_status, global_sum
     use sph_logger, only: int_text
     use sph_particles, only: particles_t, particles_reserve, particles_clear, KIND_FLUID, &
         KIND_WALL
     use sph_physics, only: physics_t
-    use sph_solids, only: solids_t, deepest_solid, solid_velocity
+    use sph_solids, only: solids_t, deepest_solid, solid_velocity, solid_distance
+    use sph_refine, only: largest_remesh_id
     use sph_walls, only: wall_site
     use sph_eos, only: eos_pressure
     use sph_global_ids, only: find_duplicate_ids
@@ -32,17 +33,24 @@ module sph_particle_file
     public :: read_initial_particles
 
     ! the per-particle problems, counted over all ranks and shown with a first example
-    integer, parameter :: n_problems = 9
-    character(len=*), parameter :: problem_text(n_problems) = [character(len=96) :: &
+    integer, parameter :: n_problems = 14
+    integer, parameter :: PROBLEM_ID_LIMIT = 14
+    character(len=*), parameter :: problem_text(n_problems) = [character(len=120) :: &
         'particles of a kind other than 0 (fluid) or 1 (wall)', &
-        'particles not finite (position, velocity, density or mass)', &
+        'particles not finite (position, velocity, density, mass, energy or wall data)', &
         'fluid particles outside the box', &
         'fluid particles inside a solid', &
         'wall particles outside every solid', &
         'particles with mass <= 0 or density <= 0', &
         'particles with id <= 0', &
         'particles with z /= 0 in a 2D run (&domain dimension = 2)', &
-        'particles with a value above 1e150 in magnitude (position, velocity, density or mass)']
+        'particles with a value above 1e150 in magnitude (position, velocity, density, ' // &
+        'mass, energy or wall data)', &
+        'particles with a level other than 0 (a run from a file has one level)', &
+        'fluid particles with a solid other than 0', &
+        'wall particles whose solid (1..number of walls and bodies) is not one they lie in', &
+        'wall particles deeper inside their solid than a kernel support and a spacing', &
+        'particles with an id above the largest a remesh can encode']
 
     !> The optional datasets: name and width (0: one value per row).
     character(len=16), parameter :: optional_names(10) = [character(len=16) :: 'velocity', &
@@ -244,33 +252,48 @@ contains
         integer(i8), intent(in) :: offset
         type(particles_t), intent(inout) :: p
         character(len=:), allocatable, intent(inout) :: message
-        integer(i8) :: counts(n_problems)
+        integer(i8) :: counts(n_problems), largest_id
+        integer(i8), allocatable :: walls_of(:)
         character(len=160) :: example(n_problems)
-        integer :: i, axis, solid, dim
+        character(len=len(problem_text) + 40) :: texts(n_problems)
+        integer :: i, axis, solid, dim, n_solids
         real(wp) :: normal(3), distance, lo, hi
         logical :: site
 
         dim = cfg%domain%dimension
         counts = 0
         example = ''
+        n_solids = 0
+        if (allocated(solids%list)) n_solids = size(solids%list)
+        allocate(walls_of(max(n_solids, 1)))
+        walls_of = 0
+        largest_id = largest_remesh_id(n_solids)
         do i = 1, p%n_owned
             if (.not. have(5)) p%id(i) = offset + i
             if (.not. have(2)) p%rho(i) = cfg%fluid%rho0
             if (.not. have(3)) p%m(i) = cfg%fluid%rho0 * cfg%domain%dx**dim
             if (.not. have(6)) p%kind(i) = KIND_FLUID
             if (p%kind(i) /= KIND_FLUID .and. p%kind(i) /= KIND_WALL) call problem(1)
+            ! (the wall data of a file that has them: a non-finite normal trapped in the
+            ! wall terms, and stopped a Release run at its first step as an instability)
             if (.not. (all(ieee_is_finite(p%x(:, i))) .and. all(ieee_is_finite(p%v(:, i))) &
-                       .and. ieee_is_finite(p%rho(i)) .and. ieee_is_finite(p%m(i)))) then
+                       .and. ieee_is_finite(p%rho(i)) .and. ieee_is_finite(p%m(i)) .and. &
+                       ieee_is_finite(p%e(i)) .and. all(ieee_is_finite(p%wall_normal(:, i))) &
+                       .and. ieee_is_finite(p%wall_distance(i)))) then
                 ! (the checks below compare: with a NaN that traps where floating-point
                 ! exceptions do)
                 call problem(2)
                 cycle
             end if
             if (max(maxval(abs(p%x(:, i))), maxval(abs(p%v(:, i))), abs(p%rho(i)), &
-                abs(p%m(i))) > LARGEST_VALUE) then
+                abs(p%m(i)), abs(p%e(i)), maxval(abs(p%wall_normal(:, i))), &
+                abs(p%wall_distance(i))) > LARGEST_VALUE) then
                 call problem(9)
                 cycle
             end if
+            ! (a level indexed the per-level data out of bounds)
+            if (p%level(i) /= 0) call problem(10)
+            if (p%id(i) > largest_id) call problem(PROBLEM_ID_LIMIT)
             if (dim == 2 .and. p%x(3, i) /= 0.0_wp) call problem(8)
             if (p%kind(i) == KIND_FLUID) then
                 do axis = 1, dim
@@ -283,15 +306,26 @@ contains
                     end if
                 end do
                 if (deepest_solid(solids, p%x(:, i), 0.0_wp) > 0) call problem(4)
+                if (p%solid(i) /= 0) call problem(11)
             else if (p%kind(i) == KIND_WALL) then
                 call wall_site(solids, p%x(:, i), cfg%domain%dx, site, solid, normal, distance)
                 if (.not. site) then
                     call problem(5)
                 else
-                    if (.not. have(8)) p%solid(i) = solid
+                    ! a solid given must be one the particle lies in (its forces go there;
+                    ! one beyond the solids wrote past the force sums)
+                    if (have(8)) then
+                        if (.not. lies_in(p%solid(i))) call problem(12)
+                    else
+                        p%solid(i) = solid
+                    end if
+                    ! deeper, it touches no fluid; far away it stretched the cell grid
+                    ! until its cell count overflowed (a wall particle 1e6 m down)
+                    if (distance > phys%kernel%support + cfg%domain%dx) call problem(13)
                     if (.not. have(9)) p%wall_normal(:, i) = normal
                     if (.not. have(10)) p%wall_distance(i) = distance
                     if (.not. have(1)) p%v(:, i) = solid_velocity(solids%list(solid), p%x(:, i))
+                    if (lies_in(p%solid(i))) walls_of(p%solid(i)) = walls_of(p%solid(i)) + 1
                 end if
             end if
             if (.not. (p%m(i) > 0.0_wp .and. p%rho(i) > 0.0_wp)) call problem(6)
@@ -304,9 +338,36 @@ contains
             p%rho_old(i) = p%rho(i)
             p%e_old(i) = p%e(i)
         end do
-        call append_problems(env, counts, example, problem_text, message)
+        texts = problem_text
+        write(texts(PROBLEM_ID_LIMIT), '(a,i0,a,i0,a)') trim(problem_text(PROBLEM_ID_LIMIT)) // &
+            ' with the input''s ', n_solids, ' walls and bodies (', largest_id, ')'
+        call append_problems(env, counts, example, texts, message)
+        ! every wall and body of the input needs its wall particles: a file without those of
+        ! one ran without that solid, and its force was reported as 0 (not said when wall
+        ! particles were refused above, by their values or labels: their counts by solid
+        ! mean nothing then)
+        if (n_solids > 0 .and. global_sum(env, counts(2) + counts(9) + counts(12)) == 0) then
+            walls_of = global_sum(env, walls_of)
+            if (any(walls_of(1:n_solids) == 0)) then
+                message = message // '; no wall particles of'
+                do solid = 1, n_solids
+                    if (walls_of(solid) == 0) message = message // ' ' // &
+                        trim(solids%list(solid)%name) // ','
+                end do
+                message = message(1:len(message) - 1) // ' (each wall and body of the ' // &
+                    'input needs its wall particles in the file)'
+            end if
+        end if
 
     contains
+
+        !> Whether solid s is one of the input's and holds the wall particle i.
+        logical function lies_in(s)
+            integer, intent(in) :: s
+            lies_in = s >= 1 .and. s <= n_solids
+            if (lies_in) lies_in = solid_distance(solids%list(s), p%x(:, i)) <= &
+                1.0e-6_wp * cfg%domain%dx
+        end function lies_in
 
         subroutine problem(which)
             integer, intent(in) :: which

@@ -151,6 +151,7 @@ module sph_refine
     implicit none
     private
     public :: refine_positions, wall_map, EDGE_FACTOR, MIRROR_DEPTH, WALL_BAND, MIN_GAP
+    public :: largest_remesh_id
 
     real(wp), parameter :: EDGE_FACTOR = 1.2_wp
     integer, parameter :: max_partners = 64
@@ -249,11 +250,14 @@ contains
             ! the set and its mirror images across every surface within MIRROR_DEPTH dx
             span = 1_i8
             if (n > 0) span = maxval(ids(1:n)) + 1_i8
-            if (span > 2_i8**61 / int(n_codes + 1, i8)) then
+            if (span - 1_i8 > largest_remesh_id(ns)) then
                 n_new = 0
                 allocate(x_new(3, 0), key(2, 0))
                 st = 1
-                if (present(errmsg)) errmsg = 'refine_positions: ids too large for mirrors'
+                if (present(errmsg)) write(errmsg, '(a,i0,a,i0,a,i0,a)') &
+                    'refine_positions: the particles'' ids reach ', span - 1_i8, &
+                    ', above the largest a remesh with ', ns, ' solids encodes (', &
+                    largest_remesh_id(ns), ')'
                 if (present(stat)) then
                     stat = st
                     return
@@ -1160,4 +1164,14 @@ contains
             error stop 'refine_positions: invalid input'
         end subroutine fail
     end subroutine construct_positions
+
+    !> The largest particle id a remesh can encode with n_solids solids: the construction
+    !> keys a point by the ids of its sources and of their mirror images across up to three
+    !> surfaces (n_solids + n_solids^2 + n_solids^3 codes), in 61 bits.
+    pure integer(i8) function largest_remesh_id(n_solids) result(largest)
+        integer, intent(in) :: n_solids
+        integer(i8) :: n_codes
+        n_codes = int(n_solids, i8) + int(n_solids, i8)**2 + int(n_solids, i8)**3
+        largest = 2_i8**61 / (n_codes + 1_i8) - 1_i8
+    end function largest_remesh_id
 end module sph_refine

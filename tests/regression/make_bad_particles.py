@@ -4,9 +4,13 @@
     make_bad_particles.py GOOD.h5 KIND OUT.h5
 
 KIND: missing_position, duplicate_id, outside_box, wrong_dimension, integer_positions (the
-positions stored as int16), nan_density, huge_density (1e300 kg/m^3) (one defect each), or
-shuffled (the same particles, rows in a random order). GOOD.h5 is a file made by
-scripts/make_initial_particles.py.
+positions stored as int16), nan_density, huge_density (1e300 kg/m^3), nan_energy,
+nan_wall_normal, level_one (every particle at level 1), solid_out_of_range (the walls
+labelled solid 7 of 2), solid_swapped (the two walls' labels exchanged), deep_wall (a wall
+particle 1 m below its wall), no_walls (the wall particles left out), huge_id (an id of
+2^60) (one defect each), or shuffled (the same particles, rows in a random order). GOOD.h5
+is a file made by scripts/make_initial_particles.py for a channel with walls on ylo
+(solid 1) and yhi (solid 2).
 """
 import sys
 
@@ -34,6 +38,29 @@ def main(good, kind, out):
     elif kind in ("nan_density", "huge_density"):
         data["density"] = data["density"].astype(np.float64)
         data["density"][3] = np.nan if kind == "nan_density" else 1.0e300
+    elif kind == "nan_energy":
+        data["energy"] = np.zeros(len(data["id"]))
+        data["energy"][3] = np.nan
+    elif kind == "nan_wall_normal":
+        data["wall_normal"] = np.zeros((len(data["id"]), 3))
+        data["wall_normal"][np.flatnonzero(data["kind"] == 1)[0], 1] = np.nan
+    elif kind == "level_one":
+        data["level"] = np.ones(len(data["id"]), dtype=np.int32)
+    elif kind in ("solid_out_of_range", "solid_swapped"):
+        wall, below = data["kind"] == 1, data["position"][:, 1] < 0.0
+        solid = np.zeros(len(data["id"]), dtype=np.int32)
+        if kind == "solid_out_of_range":
+            solid[wall] = 7
+        else:
+            solid[wall & below], solid[wall & ~below] = 2, 1
+        data["solid"] = solid
+    elif kind == "deep_wall":
+        data["position"][np.flatnonzero(data["kind"] == 1)[0], 1] = -1.0
+    elif kind == "no_walls":
+        fluid = data["kind"] == 0
+        data = {name: values[fluid] for name, values in data.items()}
+    elif kind == "huge_id":
+        data["id"][0] = 2**60
     else:
         sys.exit(f"make_bad_particles: unknown kind '{kind}'")
     with h5py.File(out, "w") as f:
