@@ -553,15 +553,24 @@ contains
                 'remeshed checkpoint is written to a new file and never replaces one; ' // &
                 'give OUT another name or remove that file')
         end if
+        ! OUT.tmp too is never replaced: the probe below, and the write, replaced a file of
+        ! that name (through a link: its target truncated to 0 bytes) without a word
+        if (env%rank == 0) inquire(file=out_path // '.tmp', exist=out_exists)
+        if (global_max(env, merge(1_i8, 0_i8, out_exists)) > 0) &
+            call fatal_collective('remesh', "'" // out_path // ".tmp' exists (left by an " // &
+                'interrupted remesh to OUT, or a file of yours): the checkpoint is written ' // &
+                'there first and never replaces a file; remove or rename it; nothing done')
         out_writable = .true.
         if (env%rank == 0) then
-            open(newunit=unit, file=out_path // '.tmp', status='replace', action='write', &
+            ! (status 'new' creates it exclusively: never through a link)
+            open(newunit=unit, file=out_path // '.tmp', status='new', action='write', &
                 iostat=ios)
             out_writable = ios == 0
             if (out_writable) close(unit, status='delete')
         end if
         if (global_max(env, merge(1_i8, 0_i8, .not. out_writable)) > 0) &
             call fatal_collective('remesh', "cannot create OUT '" // out_path // "' (its " // &
-                'folder is missing or not writable); nothing done')
+                "folder is missing or not writable, or '" // out_path // ".tmp' is a " // &
+                'link); nothing done')
     end subroutine check_out_path
 end submodule sph_stepper_remesh

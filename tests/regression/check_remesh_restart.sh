@@ -2,7 +2,8 @@
 # Regression: run Poiseuille at L/20 briefly, refine its checkpoint offline (sphremesh
 # --remesh refine) on NP ranks and on 1 rank (the same particles, fields to round-off),
 # continue the refined checkpoint at L/40 for a few steps, and check that a restart with the
-# old dx is refused; an OUT that exists, is IN or cannot be created is refused.
+# old dx is refused; an OUT that exists, is IN or cannot be created, or whose OUT.tmp
+# exists, is refused.
 # usage: check_remesh_restart.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM COARSE.nml FINE.nml WORKDIR
 #        PYTHON COMPARER
 set -u
@@ -39,6 +40,20 @@ grep -q "cannot create OUT 'no_such_folder/refined.h5' (its folder is missing or
     folder.log || fail "no message for an OUT that cannot be created:" folder.log
 grep -q "remesh: .* -> no_such_folder" folder.log && \
     fail "the remesh ran before OUT was found unwritable:" folder.log
+# OUT.tmp, where the checkpoint goes first, is never replaced either: a file of that name,
+# or a link there (whose target was truncated), is refused and left as it was
+echo "notes, not to be lost" > kept.h5.tmp
+echo "data behind a link" > target.dat && ln -s target.dat linked.h5.tmp
+for out in kept linked; do
+    if run 1 --remesh refine "$checkpoint" $out.h5 > tmp_$out.log 2>&1; then
+        fail "a remesh over an existing $out.h5.tmp was accepted:" tmp_$out.log
+    fi
+    grep -q "'$out.h5.tmp' exists (left by an interrupted remesh" tmp_$out.log || \
+        fail "no message for an existing $out.h5.tmp:" tmp_$out.log
+    [ -e $out.h5 ] && fail "$out.h5 was written although $out.h5.tmp exists"
+done
+[ "$(cat kept.h5.tmp)" = "notes, not to be lost" ] || fail "kept.h5.tmp was changed"
+[ "$(cat target.dat)" = "data behind a link" ] || fail "the link's target was changed"
 # the new particles (positions, ids, kinds) bit for bit; the fields handed on by each rank
 # for its part to round-off (sums in another order); pressure follows from the density
 "$python" "$comparer" refined.h5 refined_1.h5 --ignore rank mass density pressure velocity \
