@@ -436,6 +436,8 @@ contains
         if (stat /= 0) call fatal_collective('remesh', errmsg)
         ! a file remeshed before carries its spacing; its stored input has the original dx
         dx_file = stored_spacing(env, in_path)
+        if (dx_file < 0.0_wp) call fatal_collective('remesh', "'" // in_path // &
+            "': its attribute dx is not a positive spacing: refused")
         if (dx_file > 0.0_wp) cfg%domain%dx = dx_file
         ! the remeshing rules take one spacing: the levels of a multi-resolution state would be
         ! mixed into one set (a two-level channel refined gave 2020 particles where 2000 were
@@ -459,8 +461,6 @@ contains
         offset = env%rank * share + min(int(env%rank, i8), extra)
         call read_snapshot_rows(env, in_path, sim%p, offset, n, stat, errmsg)
         if (stat /= 0) call fatal_collective('remesh', errmsg)
-        if (.not. ieee_is_finite(time)) call fatal_collective('remesh', "'" // in_path // &
-            "': its time is not finite; refused")
         call check_read_particles(env, sim%p, 1, size(sim%solids%list), in_path, stat, errmsg)
         if (stat /= 0) call fatal_collective('remesh', errmsg)
         sim%time = time

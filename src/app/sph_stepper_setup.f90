@@ -133,8 +133,6 @@ contains
         end if
         ! values no run writes (a file edited or damaged outside sphremesh) stop here, not
         ! later as a floating-point trap, an index out of range or a hang
-        if (.not. ieee_is_finite(sim%time)) call fatal_collective(what, "'" // path // &
-            "': its time is not finite; refused")
         call check_read_particles(env, sim%p, sim%zones%n_levels, size(sim%solids%list), &
             path, stat, errmsg)
         if (stat /= 0) call fatal_collective(what, errmsg)

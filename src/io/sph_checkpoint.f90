@@ -16,6 +16,7 @@ module sph_checkpoint
     use sph_filesystem, only: list_directory
     use sph_snapshot, only: snapshot_begin, snapshot_end, read_snapshot_header, &
         read_snapshot_rows, write_particle_fields, read_particle_fields, check_datasets
+    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
     implicit none
     private
     public :: write_checkpoint, read_checkpoint, checkpoint_filename, find_latest_checkpoint
@@ -159,6 +160,15 @@ contains
             if (h5_attribute_exists(file, 'dx')) then
                 call h5_read_attribute(file, 'dx', stored_dx, dx_stat)
                 if (dx_stat == 0) dx = stored_dx
+                ! (a NaN was ignored in Release and trapped in Debug; no comparison with it)
+                if (dx_stat /= 0 .or. .not. ieee_is_finite(dx)) dx = -1.0_wp
+                if (.not. dx > 0.0_wp) then
+                    stat = 1
+                    errmsg = "'" // path // "': its attribute dx is not a positive " // &
+                        'spacing: refused'
+                    call h5_close(file)
+                    return
+                end if
             end if
         end if
         if (present(balance)) then
@@ -228,7 +238,8 @@ contains
     end subroutine read_checkpoint
 
     !> The particle spacing a checkpoint records (attribute 'dx'), 0 when the file has none
-    !> or cannot be read (a snapshot; collective).
+    !> or cannot be read (a snapshot; collective); -1 when it has one that is no spacing (not
+    !> finite or not positive: a file edited outside sphremesh).
     real(wp) function stored_spacing(env, path) result(dx)
         type(mpi_env_t), intent(in) :: env
         character(len=*), intent(in) :: path
@@ -239,7 +250,8 @@ contains
         if (stat /= 0) return
         if (h5_attribute_exists(file, 'dx')) then
             call h5_read_attribute(file, 'dx', dx, stat)
-            if (stat /= 0) dx = 0.0_wp
+            if (stat /= 0 .or. .not. ieee_is_finite(dx)) dx = -1.0_wp
+            if (dx <= 0.0_wp) dx = -1.0_wp
         end if
         call h5_close(file)
     end function stored_spacing

@@ -23,6 +23,7 @@ module sph_snapshot
         h5_row_layout, h5_write_rows, h5_read_rows, h5_dataset_rows, h5_write_attribute, &
         h5_read_attribute
     use sph_filesystem, only: make_directories, rename_file
+    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
     implicit none
     private
     public :: write_snapshot, snapshot_filename, read_snapshot_header, read_particles_rows
@@ -252,6 +253,19 @@ contains
             if (my_stat == 0) call check_datasets(file, n_rows, my_stat, message)
             if (my_stat /= 0 .and. len(message) == 0) message = "'" // path // &
                 "' lacks the snapshot attributes (time, step, dimension, input): refused"
+            ! values no run writes (a file edited outside sphremesh): a negative step or
+            ! time ran on with file names and max_steps off, a NaN time trapped later
+            if (my_stat == 0) then
+                ! (no comparison with a NaN: it traps where floating-point exceptions do)
+                if (.not. ieee_is_finite(time)) time = -1.0_wp
+                if (time < 0.0_wp) then
+                    my_stat = 1
+                    message = "'" // path // "': its time is not finite or is negative: refused"
+                else if (step < 0_i8) then
+                    my_stat = 1
+                    message = "'" // path // "': its step is negative: refused"
+                end if
+            end if
             dimension = dim4
             call h5_close(file)
         end if

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Regression: a checkpoint edited or damaged outside sphremesh (a NaN position, an id given
-# twice, a kind no run writes, a zero density, a NaN time; ids, or a checkpoint-only integer
+# twice, a kind no run writes, a zero density, a NaN or negative time, a negative step, a
+# NaN spacing; ids, or a checkpoint-only integer
 # field, rewritten as floating point with a NaN; positions rewritten as integers; a velocity
 # of 1e300 m/s; a NaN smoothing length, density or stored acceleration; a NaN completion
 # marker) is refused by
@@ -33,6 +34,9 @@ edits = {
     "bad_kind": lambda f: f["particles/kind"].__setitem__(13, 77),
     "zero_density": lambda f: f["particles/density"].__setitem__(12, 0.0),
     "nan_time": lambda f: f.attrs.__setitem__("time", np.nan),
+    "negative_time": lambda f: f.attrs.__setitem__("time", -1.0),
+    "negative_step": lambda f: f.attrs.__setitem__("step", np.int64(-5)),
+    "nan_dx": lambda f: f.attrs.__setitem__("dx", np.nan),
     "float_ids": lambda f: as_floats(f, "particles/id"),
     "float_parity": lambda f: as_floats(f, "particles/lattice_parity"),
     "nan_marker": lambda f: f.attrs.__setitem__("write_complete", np.nan),
@@ -86,6 +90,9 @@ expect repeated_id "1 fluid or wall ids given more than once"
 expect bad_kind "particles of a kind other than 0 (fluid), 1 (wall) or 2 (virtual).*kind 77"
 expect zero_density "fluid or wall particles with mass <= 0 or density <= 0"
 expect nan_time "its time is not finite"
+expect negative_time "its time is not finite or is negative"
+expect negative_step "its step is negative"
+expect nan_dx "its attribute dx is not a positive spacing"
 expect float_ids "the dataset /particles/id holds floating-point values where integers belong"
 expect float_parity \
     "the dataset /particles/lattice_parity holds floating-point values where integers belong" \
