@@ -126,8 +126,7 @@ contains
         !> what write_checkpoint stored as `balance`; empty when the file holds none
         real(wp), allocatable, intent(out), optional :: balance(:)
         type(h5_file_t) :: file
-        integer :: dimension, n, n_tree, dx_stat
-        real(wp) :: stored_dx
+        integer :: dimension, n, n_tree
         integer(i4) :: version, nranks_file
         integer(i8) :: n_rows, offset, share, extra
         integer(i8), allocatable :: rank_rows(:)
@@ -156,19 +155,13 @@ contains
         end if
         call h5_read_attribute(file, 'snapshot_index', snapshot_index, stat)
         if (present(dx)) then
-            dx = 0.0_wp
-            if (h5_attribute_exists(file, 'dx')) then
-                call h5_read_attribute(file, 'dx', stored_dx, dx_stat)
-                if (dx_stat == 0) dx = stored_dx
-                ! (a NaN was ignored in Release and trapped in Debug; no comparison with it)
-                if (dx_stat /= 0 .or. .not. ieee_is_finite(dx)) dx = -1.0_wp
-                if (.not. dx > 0.0_wp) then
-                    stat = 1
-                    errmsg = "'" // path // "': its attribute dx is not a positive " // &
-                        'spacing: refused'
-                    call h5_close(file)
-                    return
-                end if
+            dx = file_spacing(file)
+            ! (a NaN was ignored in Release and trapped in Debug)
+            if (dx < 0.0_wp) then
+                stat = 1
+                errmsg = "'" // path // "': its attribute dx is not a positive spacing: refused"
+                call h5_close(file)
+                return
             end if
         end if
         if (present(balance)) then
@@ -248,13 +241,22 @@ contains
         dx = 0.0_wp
         call h5_open_read(env, path, file, stat)
         if (stat /= 0) return
-        if (h5_attribute_exists(file, 'dx')) then
-            call h5_read_attribute(file, 'dx', dx, stat)
-            if (stat /= 0 .or. .not. ieee_is_finite(dx)) dx = -1.0_wp
-            if (dx <= 0.0_wp) dx = -1.0_wp
-        end if
+        dx = file_spacing(file)
         call h5_close(file)
     end function stored_spacing
+
+    !> The attribute 'dx' of an open file: 0 when it has none, -1 when it is no spacing (not
+    !> finite, not positive, unreadable). No comparison with a NaN: it traps where
+    !> floating-point exceptions do.
+    real(wp) function file_spacing(file) result(dx)
+        type(h5_file_t), intent(in) :: file
+        integer :: stat
+        dx = 0.0_wp
+        if (.not. h5_attribute_exists(file, 'dx')) return
+        call h5_read_attribute(file, 'dx', dx, stat)
+        if (stat /= 0 .or. .not. ieee_is_finite(dx)) dx = -1.0_wp
+        if (dx <= 0.0_wp) dx = -1.0_wp
+    end function file_spacing
 
     !> The newest complete checkpoint of `case_name` in `directory` (collective). Incomplete
     !> or unreadable candidates are skipped and named in `skipped`.
