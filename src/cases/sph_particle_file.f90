@@ -153,9 +153,15 @@ contains
         end if
         if (h5_attribute_exists(file, 'dimension')) then
             call h5_read_attribute(file, 'dimension', value, status)
-            if (status /= 0 .or. value /= dim) message = message // ' its root attribute ' // &
-                'dimension is ' // int_text(int(value, i8)) // ', &domain dimension is ' // &
-                int_text(int(dim, i8)) // ';'
+            ! (one of another type, 2.0 or '2', read as 0: the message said 'dimension is 0')
+            if (status /= 0) then
+                message = message // ' its root attribute dimension is not an integer ' // &
+                    '(2 or 3, as &domain dimension);'
+            else if (value /= dim) then
+                message = message // ' its root attribute dimension is ' // &
+                    int_text(int(value, i8)) // ', &domain dimension is ' // &
+                    int_text(int(dim, i8)) // ';'
+            end if
         end if
         n_rows = h5_dataset_rows(file, 'particles/position', width, floats)
         have = .false.

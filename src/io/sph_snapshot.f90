@@ -389,7 +389,9 @@ contains
         if (present(mask)) selection = mask
         stat = 0
         message = ''
-        rows = h5_dataset_rows(file, 'particles/id')
+        ! (counted by the positions, which every file has: counted by the ids, a missing or
+        ! short id dataset was reported as the positions')
+        rows = h5_dataset_rows(file, 'particles/position')
         fields = field_list(p)
         do k = 1, size(fields)
             if (iand(fields(k)%flags, selection) == 0) cycle

@@ -37,6 +37,7 @@ edits = {
     "negative_time": lambda f: f.attrs.__setitem__("time", -1.0),
     "negative_step": lambda f: f.attrs.__setitem__("step", np.int64(-5)),
     "nan_dx": lambda f: f.attrs.__setitem__("dx", np.nan),
+    "short_ids": lambda f: retype(f, "particles/id", np.int64, rows=-1),
     "float_ids": lambda f: as_floats(f, "particles/id"),
     "float_parity": lambda f: as_floats(f, "particles/lattice_parity"),
     "nan_marker": lambda f: f.attrs.__setitem__("write_complete", np.nan),
@@ -55,8 +56,8 @@ def shift_rows(rows):
         values[0] += 7
         values[-1] -= 7
     rows[...] = values
-def retype(f, name, kind):
-    values = f[name][()].astype(kind)
+def retype(f, name, kind, rows=None):
+    values = f[name][()].astype(kind)[:rows]
     del f[name]
     f[name] = values
 def as_floats(f, name):
@@ -93,6 +94,7 @@ expect nan_time "its time is not finite"
 expect negative_time "its time is not finite or is negative"
 expect negative_step "its step is negative"
 expect nan_dx "its attribute dx is not a positive spacing"
+expect short_ids "the dataset /particles/id is missing or has the wrong shape"
 expect float_ids "the dataset /particles/id holds floating-point values where integers belong"
 expect float_parity \
     "the dataset /particles/lattice_parity holds floating-point values where integers belong" \

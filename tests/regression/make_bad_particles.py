@@ -8,9 +8,10 @@ positions stored as int16), nan_density, huge_density (1e300 kg/m^3), nan_energy
 nan_wall_normal, level_one (every particle at level 1), solid_out_of_range (the walls
 labelled solid 7 of 2), solid_swapped (the two walls' labels exchanged), deep_wall (a wall
 particle 1 m below its wall), no_walls (the wall particles left out), huge_id (an id of
-2^60) (one defect each), or shuffled (the same particles, rows in a random order). GOOD.h5
-is a file made by scripts/make_initial_particles.py for a channel with walls on ylo
-(solid 1) and yhi (solid 2).
+2^60), float_dimension (the root attribute 2.0) (one defect each), or shuffled (the same
+particles, rows in a random order). GOOD.h5 is a file made by
+scripts/make_initial_particles.py for a channel with walls on ylo (solid 1) and yhi
+(solid 2).
 """
 import sys
 
@@ -61,10 +62,13 @@ def main(good, kind, out):
         data = {name: values[fluid] for name, values in data.items()}
     elif kind == "huge_id":
         data["id"][0] = 2**60
+    elif kind == "float_dimension":
+        pass   # the attribute below
     else:
         sys.exit(f"make_bad_particles: unknown kind '{kind}'")
     with h5py.File(out, "w") as f:
-        f.attrs["dimension"] = np.int32(dimension)
+        f.attrs["dimension"] = np.float64(dimension) if kind == "float_dimension" else \
+            np.int32(dimension)
         for name, values in data.items():
             f["particles/" + name] = values
 
