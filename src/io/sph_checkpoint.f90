@@ -310,12 +310,14 @@ contains
                 path = candidate
                 return
             end if
+            ! (one reason after another, separated: they ran together)
+            if (len(skipped) > 0) skipped = skipped // ';'
             skipped = skipped // ' ' // reason
             steps(best) = -1
             if (all(steps < 0)) exit
         end do
         stat = 1
-        errmsg = "no complete checkpoint '" // prefix // "*.h5' in '" // directory // "'" // &
-            skipped
+        errmsg = "no complete checkpoint '" // prefix // "*.h5' in '" // directory // "'"
+        if (len(skipped) > 0) errmsg = errmsg // ' (skipped:' // skipped // ')'
     end subroutine find_latest_checkpoint
 end module sph_checkpoint
