@@ -461,7 +461,8 @@ contains
         offset = env%rank * share + min(int(env%rank, i8), extra)
         call read_snapshot_rows(env, in_path, sim%p, offset, n, stat, errmsg)
         if (stat /= 0) call fatal_collective('remesh', errmsg)
-        call check_read_particles(env, sim%p, 1, size(sim%solids%list), in_path, stat, errmsg)
+        call check_read_particles(env, sim%p, 1, size(sim%solids%list), in_path, stat, errmsg, &
+            sim%solids, IN_SOLID_SLACK)
         if (stat /= 0) call fatal_collective('remesh', errmsg)
         sim%time = time
         sim%step = step

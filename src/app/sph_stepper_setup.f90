@@ -134,7 +134,7 @@ contains
         ! values no run writes (a file edited or damaged outside sphremesh) stop here, not
         ! later as a floating-point trap, an index out of range or a hang
         call check_read_particles(env, sim%p, sim%zones%n_levels, size(sim%solids%list), &
-            path, stat, errmsg)
+            path, stat, errmsg, sim%solids, IN_SOLID_SLACK)
         if (stat /= 0) call fatal_collective(what, errmsg)
         ! the levels' balance as the checkpointed run had it (the reference mass, and for
         ! sub-cycled levels the pushes of the levels not evaluated at the next step), and

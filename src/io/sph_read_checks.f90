@@ -12,12 +12,13 @@ module sph_read_checks
     use sph_logger, only: int_text
     use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL
     use sph_global_ids, only: find_duplicate_ids
+    use sph_solids, only: solids_t, solid_distance
     use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
     implicit none
     private
     public :: check_read_particles, append_problems, LARGEST_VALUE
 
-    integer, parameter :: N_PROBLEMS = 9
+    integer, parameter :: N_PROBLEMS = 10
     !> The largest magnitude taken: squares and products of a few such values stay finite
     !> (a velocity of 1e300 m/s overflowed in the first time step limit)
     real(wp), parameter :: LARGEST_VALUE = 1.0e150_wp
@@ -32,20 +33,26 @@ module sph_read_checks
         'mass or energy)', &
         'particles whose smoothing length is not finite, not > 0 or above 1e150', &
         'particles whose stored rates or wall data (acceleration, density_rate, ' // &
-        'energy_rate, wall_normal, wall_distance) are not finite or above 1e150']
+        'energy_rate, wall_normal, wall_distance) are not finite or above 1e150', &
+        'fluid particles inside a solid of the input, deeper than the health check takes']
 
 contains
 
     !> stat /= 0 and errmsg (naming path and every problem) when the owned particles of p
     !> hold a problem above; n_levels and n_solids: the levels and solids of the input the
-    !> run continues with.
-    subroutine check_read_particles(env, p, n_levels, n_solids, path, stat, errmsg)
+    !> run continues with. solids, slack (optional, together): the input's solids; a fluid
+    !> particle deeper than slack h inside one is refused (the health check's limit: such a
+    !> run stopped after its first step, with a failure snapshot).
+    subroutine check_read_particles(env, p, n_levels, n_solids, path, stat, errmsg, solids, &
+            slack)
         type(mpi_env_t), intent(in) :: env
         type(particles_t), intent(in) :: p
         integer, intent(in) :: n_levels, n_solids
         character(len=*), intent(in) :: path
         integer, intent(out) :: stat
         character(len=:), allocatable, intent(out) :: errmsg
+        type(solids_t), intent(in), optional :: solids
+        real(wp), intent(in), optional :: slack
         integer(i8) :: counts(N_PROBLEMS), n_duplicates, duplicate
         character(len=160) :: example(N_PROBLEMS)
         character(len=:), allocatable :: message
@@ -69,6 +76,9 @@ contains
                     LARGEST_VALUE) call problem(7)
                 if (real_kind .and. .not. (p%m(i) > 0.0_wp .and. p%rho(i) > 0.0_wp)) &
                     call problem(3)
+                if (p%kind(i) == KIND_FLUID .and. present(solids) .and. present(slack)) then
+                    if (deep_in_a_solid()) call problem(10)
+                end if
             end if
             ! (a checkpoint's: a Verlet step starts from the rates)
             if (.not. usable([p%dvdt(:, i), p%drhodt(i), p%dedt(i), p%wall_normal(:, i), &
@@ -99,6 +109,21 @@ contains
             message(3:) // '; refused (a file edited or damaged outside sphremesh?)'
 
     contains
+
+        !> Whether fluid particle i lies deeper than slack h inside one of the solids.
+        logical function deep_in_a_solid()
+            integer :: k
+            deep_in_a_solid = .false.
+            if (.not. allocated(solids%list)) return
+            ! (a NaN smoothing length is refused as problem 8; no comparison with it)
+            if (.not. ieee_is_finite(p%h(i))) return
+            do k = 1, size(solids%list)
+                if (solid_distance(solids%list(k), p%x(:, i)) < -slack * p%h(i)) then
+                    deep_in_a_solid = .true.
+                    return
+                end if
+            end do
+        end function deep_in_a_solid
 
         !> Every value finite and at most LARGEST_VALUE in magnitude (no comparison with a
         !> NaN, which traps where floating-point exceptions do).

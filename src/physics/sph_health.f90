@@ -16,7 +16,7 @@ module sph_health
     private
     public :: health_problem_t, check_particles, check_timestep
     public :: HEALTH_OK, HEALTH_NONFINITE, HEALTH_IN_SOLID, HEALTH_DENSITY, HEALTH_TIMESTEP
-    public :: HEALTH_RUNAWAY, check_displacement
+    public :: HEALTH_RUNAWAY, check_displacement, IN_SOLID_SLACK
 
     integer, parameter :: HEALTH_OK = 0
     integer, parameter :: HEALTH_NONFINITE = 1   !< a position, velocity or density is NaN/Inf

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Regression: a checkpoint edited or damaged outside sphremesh (a NaN position, an id given
 # twice, a kind no run writes, a zero density, a NaN or negative time, a negative step, a
-# NaN spacing; ids, or a checkpoint-only integer
+# NaN spacing, a fluid particle deep in a wall; ids, or a checkpoint-only integer
 # field, rewritten as floating point with a NaN; positions rewritten as integers; a velocity
 # of 1e300 m/s; a NaN smoothing length, density or stored acceleration; a NaN completion
 # marker) is refused by
@@ -38,6 +38,7 @@ edits = {
     "negative_step": lambda f: f.attrs.__setitem__("step", np.int64(-5)),
     "nan_dx": lambda f: f.attrs.__setitem__("dx", np.nan),
     "short_ids": lambda f: retype(f, "particles/id", np.int64, rows=-1),
+    "fluid_in_wall": lambda f: into_wall(f),
     "float_ids": lambda f: as_floats(f, "particles/id"),
     "float_parity": lambda f: as_floats(f, "particles/lattice_parity"),
     "nan_marker": lambda f: f.attrs.__setitem__("write_complete", np.nan),
@@ -50,6 +51,10 @@ edits = {
     "nan_tree_cut": lambda f: f["checkpoint/orb_cut"].__setitem__(0, np.nan),
     "shifted_rank_rows": lambda f: shift_rows(f["checkpoint/rank_rows"]),
 }
+def into_wall(f):
+    position = f["particles/position"][()]
+    position[np.flatnonzero(f["particles/kind"][()] == 0)[0], 1] = -5.0e-4
+    f["particles/position"][...] = position
 def shift_rows(rows):
     values = rows[()]
     if len(values) > 1:
@@ -95,6 +100,7 @@ expect negative_time "its time is not finite or is negative"
 expect negative_step "its step is negative"
 expect nan_dx "its attribute dx is not a positive spacing"
 expect short_ids "the dataset /particles/id is missing or has the wrong shape"
+expect fluid_in_wall "1 fluid particles inside a solid of the input, deeper than the health"
 expect float_ids "the dataset /particles/id holds floating-point values where integers belong"
 expect float_parity \
     "the dataset /particles/lattice_parity holds floating-point values where integers belong" \
