@@ -37,10 +37,9 @@ module sph_stepper
     use sph_snapshot, only: snapshot_filename, snapshot_begin, snapshot_end
     use sph_hdf5, only: h5_file_t, h5_write_attribute
     use sph_health, only: health_problem_t, check_particles, check_timestep, HEALTH_OK, &
-        IN_SOLID_SLACK, &
-        HEALTH_NONFINITE, check_displacement
+        HEALTH_NONFINITE, check_displacement, IN_SOLID_SLACK
     use sph_checkpoint, only: read_checkpoint, find_latest_checkpoint
-    use sph_read_checks, only: check_read_particles
+    use sph_read_checks, only: check_read_particles, check_fluid_outside_solids
     use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
     use sph_version, only: code_version
     use sph_zones, only: zones_t

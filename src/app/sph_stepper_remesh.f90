@@ -10,7 +10,7 @@ submodule (sph_stepper) sph_stepper_remesh
     use sph_disorder_measure, only: nearest_distance_sums, disorder_from_sums
     use sph_snapshot, only: read_snapshot_header, read_snapshot_rows
     use sph_checkpoint, only: write_checkpoint, stored_spacing
-    use sph_read_checks, only: check_read_particles
+    use sph_read_checks, only: check_read_particles, check_fluid_outside_solids
     use sph_remesh_driver, only: remesh_report_t, remesh_fluid, remesh_mode_code, &
         remesh_spacing_factor, fluid_mass_momentum, restore_momentum, restore_energy, accurate_sum, &
         REMESH_NONE, REMESH_REFINE, REMESH_COARSEN, REMESH_SAME, NARROW_GAP
@@ -461,8 +461,10 @@ contains
         offset = env%rank * share + min(int(env%rank, i8), extra)
         call read_snapshot_rows(env, in_path, sim%p, offset, n, stat, errmsg)
         if (stat /= 0) call fatal_collective('remesh', errmsg)
-        call check_read_particles(env, sim%p, 1, size(sim%solids%list), in_path, stat, errmsg, &
-            sim%solids, IN_SOLID_SLACK)
+        call check_read_particles(env, sim%p, 1, size(sim%solids%list), in_path, stat, errmsg)
+        if (stat /= 0) call fatal_collective('remesh', errmsg)
+        call check_fluid_outside_solids(env, sim%p, sim%solids, IN_SOLID_SLACK, in_path, stat, &
+            errmsg)
         if (stat /= 0) call fatal_collective('remesh', errmsg)
         sim%time = time
         sim%step = step

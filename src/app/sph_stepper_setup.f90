@@ -97,7 +97,7 @@ contains
         character(len=:), allocatable :: path, skipped, errmsg, stored_input, index_text
         character(len=:), allocatable :: mismatch
         type(config_t) :: stored
-        integer :: stat
+        integer :: stat, fluid_stat
         logical :: same_layout, is_directory
         character(len=256) :: line
         real(wp) :: stored_dx
@@ -114,7 +114,8 @@ contains
             call find_latest_checkpoint(env, from, trim(cfg%run%case_name), path, skipped, stat, &
                 errmsg)
             if (stat /= 0) call fatal_collective(what, errmsg)
-            if (len(skipped) > 0) call log_info(what // ': skipped' // skipped)
+            ! (a warning: a newer checkpoint, truncated by a crash or damaged, is not used)
+            if (len(skipped) > 0) call log_warn(what // ': skipped' // skipped)
         else
             path = from
         end if
@@ -134,7 +135,7 @@ contains
         ! values no run writes (a file edited or damaged outside sphremesh) stop here, not
         ! later as a floating-point trap, an index out of range or a hang
         call check_read_particles(env, sim%p, sim%zones%n_levels, size(sim%solids%list), &
-            path, stat, errmsg, sim%solids, IN_SOLID_SLACK)
+            path, stat, errmsg)
         if (stat /= 0) call fatal_collective(what, errmsg)
         ! the levels' balance as the checkpointed run had it (the reference mass, and for
         ! sub-cycled levels the pushes of the levels not evaluated at the next step), and
@@ -202,6 +203,11 @@ contains
                 ' m; set &domain dx to the checkpoint''s spacing to continue from it'
             call fatal_collective(what, trim(line))
         end if
+        ! fluid deep inside a solid (after the geometry's refusals: a moved body is said so)
+        ! (its own status: stat still says whether the stored input was read, below)
+        call check_fluid_outside_solids(env, sim%p, sim%solids, IN_SOLID_SLACK, path, &
+            fluid_stat, errmsg)
+        if (fluid_stat /= 0) call fatal_collective(what, errmsg)
         ! a checkpoint's rates are its own input's: with other physics (a body force changed
         ! to continue) the first step would kick with the old ones (checked after the
         ! refusals: a run that stops is not told that its rates will be evaluated)

@@ -18,13 +18,14 @@ module sph_particle_file
     use sph_logger, only: int_text
     use sph_particles, only: particles_t, particles_reserve, particles_clear, KIND_FLUID, &
         KIND_WALL
-    use sph_physics, only: physics_t
-    use sph_solids, only: solids_t, deepest_solid, solid_velocity, solid_distance
+    use sph_physics, only: physics_t, WALLS_MIRROR
+    use sph_health, only: IN_SOLID_SLACK
+    use sph_solids, only: solids_t, solid_velocity, solid_distance
     use sph_refine, only: largest_remesh_id
     use sph_walls, only: wall_site
     use sph_eos, only: eos_pressure
     use sph_global_ids, only: find_duplicate_ids
-    use sph_read_checks, only: append_problems, LARGEST_VALUE
+    use sph_read_checks, only: append_problems, fluid_too_deep, LARGEST_VALUE
     use sph_hdf5, only: h5_file_t, h5_open_read, h5_close, h5_read_rows, h5_dataset_rows, &
         h5_read_attribute, h5_attribute_exists
     use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
@@ -39,7 +40,7 @@ module sph_particle_file
         'particles of a kind other than 0 (fluid) or 1 (wall)', &
         'particles not finite (position, velocity, density, mass, energy or wall data)', &
         'fluid particles outside the box', &
-        'fluid particles inside a solid', &
+        'fluid particles inside a solid (deeper than the health check takes, 0.2 h)', &
         'wall particles outside every solid', &
         'particles with mass <= 0 or density <= 0', &
         'particles with id <= 0', &
@@ -263,8 +264,8 @@ contains
         character(len=160) :: example(n_problems)
         character(len=len(problem_text) + 40) :: texts(n_problems)
         integer :: i, axis, solid, dim, n_solids
-        real(wp) :: normal(3), distance, lo, hi
-        logical :: site
+        real(wp) :: normal(3), distance, lo, hi, slack
+        logical :: site, outside
 
         dim = cfg%domain%dimension
         counts = 0
@@ -274,6 +275,7 @@ contains
         allocate(walls_of(max(n_solids, 1)))
         walls_of = 0
         largest_id = largest_remesh_id(n_solids)
+        slack = IN_SOLID_SLACK * phys%kernel%h
         do i = 1, p%n_owned
             if (.not. have(5)) p%id(i) = offset + i
             if (.not. have(2)) p%rho(i) = cfg%fluid%rho0
@@ -302,16 +304,22 @@ contains
             if (p%id(i) > largest_id) call problem(PROBLEM_ID_LIMIT)
             if (dim == 2 .and. p%x(3, i) /= 0.0_wp) call problem(8)
             if (p%kind(i) == KIND_FLUID) then
+                ! within the health check's slack of a wall, as a run's own snapshot or
+                ! checkpoint may hold it (a restart takes those: so does a file start)
                 do axis = 1, dim
                     lo = cfg%domain%box_lo(axis)
                     hi = cfg%domain%box_hi(axis)
-                    if (p%x(axis, i) < lo .or. p%x(axis, i) > hi .or. &
-                        (cfg%domain%is_periodic(axis) .and. p%x(axis, i) >= hi)) then
+                    if (cfg%domain%is_periodic(axis)) then
+                        outside = p%x(axis, i) < lo .or. p%x(axis, i) >= hi
+                    else
+                        outside = p%x(axis, i) < lo - slack .or. p%x(axis, i) > hi + slack
+                    end if
+                    if (outside) then
                         call problem(3)
                         exit
                     end if
                 end do
-                if (deepest_solid(solids, p%x(:, i), 0.0_wp) > 0) call problem(4)
+                if (fluid_too_deep(solids, p%x(:, i), slack)) call problem(4)
                 if (p%solid(i) /= 0) call problem(11)
             else if (p%kind(i) == KIND_WALL) then
                 call wall_site(solids, p%x(:, i), cfg%domain%dx, site, solid, normal, distance)
@@ -352,7 +360,9 @@ contains
         ! one ran without that solid, and its force was reported as 0 (not said when wall
         ! particles were refused above, by their values or labels: their counts by solid
         ! mean nothing then)
-        if (n_solids > 0 .and. global_sum(env, counts(2) + counts(9) + counts(12)) == 0) then
+        ! (mirror walls have none: their images are made at each step)
+        if (n_solids > 0 .and. phys%walls /= WALLS_MIRROR .and. &
+            global_sum(env, counts(2) + counts(9) + counts(12)) == 0) then
             walls_of = global_sum(env, walls_of)
             if (any(walls_of(1:n_solids) == 0)) then
                 message = message // '; no wall particles of'

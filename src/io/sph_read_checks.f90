@@ -16,9 +16,10 @@ module sph_read_checks
     use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
     implicit none
     private
-    public :: check_read_particles, append_problems, LARGEST_VALUE
+    public :: check_read_particles, check_fluid_outside_solids, fluid_too_deep
+    public :: append_problems, LARGEST_VALUE
 
-    integer, parameter :: N_PROBLEMS = 10
+    integer, parameter :: N_PROBLEMS = 9
     !> The largest magnitude taken: squares and products of a few such values stay finite
     !> (a velocity of 1e300 m/s overflowed in the first time step limit)
     real(wp), parameter :: LARGEST_VALUE = 1.0e150_wp
@@ -33,26 +34,20 @@ module sph_read_checks
         'mass or energy)', &
         'particles whose smoothing length is not finite, not > 0 or above 1e150', &
         'particles whose stored rates or wall data (acceleration, density_rate, ' // &
-        'energy_rate, wall_normal, wall_distance) are not finite or above 1e150', &
-        'fluid particles inside a solid of the input, deeper than the health check takes']
+        'energy_rate, wall_normal, wall_distance) are not finite or above 1e150']
 
 contains
 
     !> stat /= 0 and errmsg (naming path and every problem) when the owned particles of p
     !> hold a problem above; n_levels and n_solids: the levels and solids of the input the
-    !> run continues with. solids, slack (optional, together): the input's solids; a fluid
-    !> particle deeper than slack h inside one is refused (the health check's limit: such a
-    !> run stopped after its first step, with a failure snapshot).
-    subroutine check_read_particles(env, p, n_levels, n_solids, path, stat, errmsg, solids, &
-            slack)
+    !> run continues with.
+    subroutine check_read_particles(env, p, n_levels, n_solids, path, stat, errmsg)
         type(mpi_env_t), intent(in) :: env
         type(particles_t), intent(in) :: p
         integer, intent(in) :: n_levels, n_solids
         character(len=*), intent(in) :: path
         integer, intent(out) :: stat
         character(len=:), allocatable, intent(out) :: errmsg
-        type(solids_t), intent(in), optional :: solids
-        real(wp), intent(in), optional :: slack
         integer(i8) :: counts(N_PROBLEMS), n_duplicates, duplicate
         character(len=160) :: example(N_PROBLEMS)
         character(len=:), allocatable :: message
@@ -76,9 +71,6 @@ contains
                     LARGEST_VALUE) call problem(7)
                 if (real_kind .and. .not. (p%m(i) > 0.0_wp .and. p%rho(i) > 0.0_wp)) &
                     call problem(3)
-                if (p%kind(i) == KIND_FLUID .and. present(solids) .and. present(slack)) then
-                    if (deep_in_a_solid()) call problem(10)
-                end if
             end if
             ! (a checkpoint's: a Verlet step starts from the rates)
             if (.not. usable([p%dvdt(:, i), p%drhodt(i), p%dedt(i), p%wall_normal(:, i), &
@@ -110,21 +102,6 @@ contains
 
     contains
 
-        !> Whether fluid particle i lies deeper than slack h inside one of the solids.
-        logical function deep_in_a_solid()
-            integer :: k
-            deep_in_a_solid = .false.
-            if (.not. allocated(solids%list)) return
-            ! (a NaN smoothing length is refused as problem 8; no comparison with it)
-            if (.not. ieee_is_finite(p%h(i))) return
-            do k = 1, size(solids%list)
-                if (solid_distance(solids%list(k), p%x(:, i)) < -slack * p%h(i)) then
-                    deep_in_a_solid = .true.
-                    return
-                end if
-            end do
-        end function deep_in_a_solid
-
         !> Every value finite and at most LARGEST_VALUE in magnitude (no comparison with a
         !> NaN, which traps where floating-point exceptions do).
         pure logical function usable(values)
@@ -141,6 +118,58 @@ contains
                 p%x(:, i), ' m, kind ', p%kind(i), ', level ', p%level(i)
         end subroutine problem
     end subroutine check_read_particles
+
+    !> stat /= 0 and errmsg (naming path) when a fluid particle of p lies deeper than slack h
+    !> inside one of the solids (the health check's limit: such a run stopped after its first
+    !> step, with a failure snapshot, and --remesh with an internal message). Run after
+    !> check_read_particles has passed (finite positions, valid smoothing lengths) and after
+    !> the geometry was compared with the checkpoint's (a moved body is said so there).
+    !> Collective.
+    subroutine check_fluid_outside_solids(env, p, solids, slack, path, stat, errmsg)
+        type(mpi_env_t), intent(in) :: env
+        type(particles_t), intent(in) :: p
+        type(solids_t), intent(in) :: solids
+        real(wp), intent(in) :: slack
+        character(len=*), intent(in) :: path
+        integer, intent(out) :: stat
+        character(len=:), allocatable, intent(out) :: errmsg
+        integer(i8) :: counts(1)
+        character(len=160) :: example(1)
+        character(len=:), allocatable :: message
+        integer :: i
+        counts = 0
+        example = ''
+        do i = 1, p%n_owned
+            if (p%kind(i) /= KIND_FLUID) cycle
+            if (.not. fluid_too_deep(solids, p%x(:, i), slack * p%h(i))) cycle
+            counts(1) = counts(1) + 1
+            if (counts(1) == 1) write(example(1), '(a,i0,a,3es14.6,a)') 'id ', p%id(i), ' at', &
+                p%x(:, i), ' m'
+        end do
+        message = ''
+        call append_problems(env, counts, example, [character(len=80) :: 'fluid particles ' // &
+            'inside a solid, deeper than the health check takes'], message)
+        stat = merge(1, 0, len(message) > 0)
+        errmsg = ''
+        if (stat /= 0) errmsg = "'" // path // "' holds particles no run writes: " // &
+            message(3:) // '; refused (a file edited or damaged outside sphremesh?)'
+    end subroutine check_fluid_outside_solids
+
+    !> Whether x lies deeper than `depth` inside one of the solids (the health check's
+    !> criterion, with depth its slack times h).
+    pure logical function fluid_too_deep(solids, x, depth) result(deep)
+        type(solids_t), intent(in) :: solids
+        real(wp), intent(in) :: x(3), depth
+        integer :: k
+        deep = .false.
+        if (.not. allocated(solids%list)) return
+        do k = 1, size(solids%list)
+            if (solid_distance(solids%list(k), x) < -depth) then
+                deep = .true.
+                return
+            end if
+        end do
+    end function fluid_too_deep
 
     !> message // '; <count> <problem text> (first: <example>)' for every problem counted on
     !> some rank: counts summed over the ranks, the example from the lowest rank that has one

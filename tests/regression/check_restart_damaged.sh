@@ -100,7 +100,7 @@ expect negative_time "its time is not finite or is negative"
 expect negative_step "its step is negative"
 expect nan_dx "its attribute dx is not a positive spacing"
 expect short_ids "the dataset /particles/id is missing or has the wrong shape"
-expect fluid_in_wall "1 fluid particles inside a solid of the input, deeper than the health"
+expect fluid_in_wall "1 fluid particles inside a solid, deeper than the health check takes"
 expect float_ids "the dataset /particles/id holds floating-point values where integers belong"
 expect float_parity \
     "the dataset /particles/lattice_parity holds floating-point values where integers belong" \
