@@ -15,9 +15,9 @@ module sph_particle_file
     use sph_kinds, only: wp, i4, i8
     use sph_config, only: config_t
     use sph_mpi_env, only: mpi_env_t, agreed_status, global_sum
-    use sph_logger, only: int_text
-    use sph_particles, only: particles_t, particles_reserve, particles_clear, KIND_FLUID, &
-        KIND_WALL
+    use sph_logger, only: int_text, log_warn
+    use sph_particles, only: particles_t, particles_reserve, particles_clear, particles_gather, &
+        KIND_FLUID, KIND_WALL
     use sph_physics, only: physics_t, WALLS_MIRROR
     use sph_health, only: IN_SOLID_SLACK
     use sph_solids, only: solids_t, solid_velocity, solid_distance
@@ -34,8 +34,8 @@ module sph_particle_file
     public :: read_initial_particles
 
     ! the per-particle problems, counted over all ranks and shown with a first example
-    integer, parameter :: n_problems = 14
-    integer, parameter :: PROBLEM_ID_LIMIT = 14
+    integer, parameter :: n_problems = 13
+    integer, parameter :: PROBLEM_ID_LIMIT = 13
     character(len=*), parameter :: problem_text(n_problems) = [character(len=120) :: &
         'particles of a kind other than 0 (fluid) or 1 (wall)', &
         'particles not finite (position, velocity, density, mass, energy or wall data)', &
@@ -50,7 +50,6 @@ module sph_particle_file
         'particles with a level other than 0 (a run from a file has one level)', &
         'fluid particles with a solid other than 0', &
         'wall particles whose solid (1..number of walls and bodies) is not one they lie in', &
-        'wall particles deeper inside their solid than a kernel support and a spacing', &
         'particles with an id above the largest a remesh can encode']
 
     !> The optional datasets: name and width (0: one value per row).
@@ -77,8 +76,10 @@ contains
         character(len=:), allocatable, intent(out) :: errmsg
         type(h5_file_t) :: file
         integer :: dim, n, width, my_stat
-        integer(i8) :: n_rows, share, extra, offset, duplicate, n_duplicates
+        integer(i8) :: n_rows, share, extra, offset, duplicate, n_duplicates, n_deep
+        integer :: k
         logical :: have(size(optional_names))
+        logical, allocatable :: too_deep(:)
         character(len=:), allocatable :: message
 
         dim = cfg%domain%dimension
@@ -122,7 +123,7 @@ contains
             return
         end if
 
-        call complete_and_check(env, cfg, phys, solids, have, offset, p, message)
+        call complete_and_check(env, cfg, phys, solids, have, offset, p, message, too_deep)
         call find_duplicate_ids(env, p%id, n, n_duplicates, duplicate)
         if (n_duplicates > 0) message = message // '; ' // int_text(n_duplicates) // &
             ' ids given more than once (the smallest: ' // int_text(duplicate) // ')'
@@ -130,6 +131,16 @@ contains
         errmsg = ''
         if (stat /= 0) errmsg = "the initial particle file '" // path // "' is refused: " // &
             message(3:)
+        if (stat /= 0) return
+        n_deep = global_sum(env, int(count(too_deep), i8))
+        if (n_deep > 0) then
+            call particles_gather(p, pack([(k, k = 1, n)], .not. too_deep))
+            p%n_owned = count(.not. too_deep)
+            p%n_total = p%n_owned
+            call log_warn("initial particles: dropped " // int_text(n_deep) // ' wall ' // &
+                'particles of ' // path // ' deeper inside their solid than a kernel ' // &
+                'support and dx (they touch no fluid: layers of a run with a wider kernel?)')
+        end if
     end subroutine read_initial_particles
 
     !> Root attributes and dataset shapes; appends '; ...' to message for every problem.
@@ -250,7 +261,7 @@ contains
     !> Defaults for what the file lacks, the derived fields, and the checks of every
     !> particle; message gets '; <count> particles <problem> (first: ...)' per problem
     !> (counts over all ranks, the example from the lowest rank that has one: collective).
-    subroutine complete_and_check(env, cfg, phys, solids, have, offset, p, message)
+    subroutine complete_and_check(env, cfg, phys, solids, have, offset, p, message, too_deep)
         type(mpi_env_t), intent(in) :: env
         type(config_t), intent(in) :: cfg
         type(physics_t), intent(in) :: phys
@@ -259,6 +270,8 @@ contains
         integer(i8), intent(in) :: offset
         type(particles_t), intent(inout) :: p
         character(len=:), allocatable, intent(inout) :: message
+        !> the wall particles deeper inside their solid than a kernel support and dx
+        logical, allocatable, intent(out) :: too_deep(:)
         integer(i8) :: counts(n_problems), largest_id
         integer(i8), allocatable :: walls_of(:)
         character(len=160) :: example(n_problems)
@@ -275,6 +288,8 @@ contains
         allocate(walls_of(max(n_solids, 1)))
         walls_of = 0
         largest_id = largest_remesh_id(n_solids)
+        allocate(too_deep(p%n_owned))
+        too_deep = .false.
         slack = IN_SOLID_SLACK * phys%kernel%h
         do i = 1, p%n_owned
             if (.not. have(5)) p%id(i) = offset + i
@@ -333,13 +348,15 @@ contains
                     else
                         p%solid(i) = solid
                     end if
-                    ! deeper, it touches no fluid; far away it stretched the cell grid
+                    ! deeper, it touches no fluid (a snapshot of a run with a wider kernel
+                    ! has such layers): dropped below; far away it stretched the cell grid
                     ! until its cell count overflowed (a wall particle 1e6 m down)
-                    if (distance > phys%kernel%support + cfg%domain%dx) call problem(13)
+                    too_deep(i) = distance > phys%kernel%support + cfg%domain%dx
                     if (.not. have(9)) p%wall_normal(:, i) = normal
                     if (.not. have(10)) p%wall_distance(i) = distance
                     if (.not. have(1)) p%v(:, i) = solid_velocity(solids%list(solid), p%x(:, i))
-                    if (lies_in(p%solid(i))) walls_of(p%solid(i)) = walls_of(p%solid(i)) + 1
+                    if (lies_in(p%solid(i)) .and. .not. too_deep(i)) &
+                        walls_of(p%solid(i)) = walls_of(p%solid(i)) + 1
                 end if
             end if
             if (.not. (p%m(i) > 0.0_wp .and. p%rho(i) > 0.0_wp)) call problem(6)

@@ -6,7 +6,8 @@
 #               VARIANT: first rewrite the file with BREAKER (make_bad_particles.py VARIANT).
 #   MODE=error: break the file with BREAKER (make_bad_particles.py VARIANT) and expect a
 #               non-zero exit with exactly one error message matching EXPECT.
-#   MODE=accept: as run, without the comparison: the run must read the file and finish.
+#   MODE=accept: as run, without the comparison: the run must read the file and finish
+#               (and its log match EXPECT, when given; VARIANT as for run).
 #   WALL_MODEL (any mode): the input's &numerics wall_model replaced by this one, for the
 #               file and the run.
 file(REMOVE_RECURSE ${WORKDIR})
@@ -64,6 +65,9 @@ if(NOT out MATCHES "particles: read from ")
     message(FATAL_ERROR "the run did not read the particle file")
 endif()
 if(MODE STREQUAL "accept")
+    if(DEFINED EXPECT AND NOT "${out}${err}" MATCHES "${EXPECT}")
+        message(FATAL_ERROR "the log does not match '${EXPECT}':\n${out}${err}")
+    endif()
     return()
 endif()
 execute_process(COMMAND ${PYTHON} ${COMPARER} ${REFERENCE_DIR}/${SNAPSHOT}
