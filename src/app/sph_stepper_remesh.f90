@@ -424,6 +424,7 @@ contains
         integer, allocatable :: keep(:)
         character(len=32) :: number
         character(len=:), allocatable :: problem
+        logical :: for_study
 
         mode = remesh_mode_code(mode_name)
         if (mode <= REMESH_NONE) call fatal_collective('remesh', "unknown mode '" // &
@@ -452,7 +453,8 @@ contains
         ! OUT is still written (its particles are what the rules make, for study), but no run
         ! can continue it: say so before the work
         problem = spacing_problem(cfg, mode)
-        if (len(problem) > 0) call log_warn('remesh: ' // problem // ': no run can continue ' // &
+        for_study = len(problem) > 0
+        if (for_study) call log_warn('remesh: ' // problem // ': no run can continue ' // &
             'OUT at that spacing (it is written for study)')
         call setup_common(sim, env, cfg)
         share = n_rows / env%nranks
@@ -485,8 +487,15 @@ contains
             sim%cfg%domain%dx)
         if (stat /= 0) call fatal_collective('remesh', errmsg)
         write(number, '(es15.8)') sim%cfg%domain%dx
-        call log_info('remesh: checkpoint ' // out_path // ' written; continue with ' // &
-            '--restart ' // out_path // ' and &domain dx = ' // trim(adjustl(number)))
+        ! (not where no run can continue it: the warning before the work said so, and the
+        ! hint sent users to a restart that every input refuses)
+        if (for_study) then
+            call log_info('remesh: checkpoint ' // out_path // ' written (for study: no ' // &
+                'run can continue it at dx = ' // trim(adjustl(number)) // ')')
+        else
+            call log_info('remesh: checkpoint ' // out_path // ' written; continue with ' // &
+                '--restart ' // out_path // ' and &domain dx = ' // trim(adjustl(number)))
+        end if
     end procedure simulation_remesh_file
 
     module procedure simulation_refine_regions_file

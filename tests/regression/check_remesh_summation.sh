@@ -43,4 +43,9 @@ run "$np" --remesh coarsen "$checkpoint" coarse.h5 > coarsen.log 2>&1 || \
     fail "the coarsening failed:" coarsen.log
 grep -q "warning: remesh: the new spacing 8.000E-05 m does not divide the box length on axis 1.*no run can continue OUT" coarsen.log || \
     fail "no warning for the odd box:" coarsen.log
+# and its last line does not send the user to a restart that every input refuses
+grep -q "remesh: checkpoint coarse.h5 written (for study: no run can continue it" coarsen.log ||
+    fail "no 'for study' line for the odd box:" coarsen.log
+grep -q "continue with --restart coarse.h5" coarsen.log && \
+    fail "a restart hint for a checkpoint no run can continue:" coarsen.log
 echo "refined the L/25 cavity at 0.01 s, continued at L/50: $line"
