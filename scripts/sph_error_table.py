@@ -13,7 +13,9 @@ The error is ||v - v_exact|| / ||v_exact|| over all real fluid particles (every 
 component counts; virtual particles, kind 2, are left out). The case comes from the file's
 `analytic` input key, or --case. --level restricts the sums to the real particles of one
 resolution level (a multi-resolution run), --band to those with band[0] <= y < band[1]
-(the same region of a uniform run, for comparison), --outside to the others.
+(the same region of a uniform run, for comparison), --outside to the others; y is the
+coordinate across the channel (the axis whose faces are walls), the flow runs along the body
+force or the moving wall, as the program takes them.
 """
 import argparse
 import sys
@@ -31,21 +33,49 @@ import sph_analytic
 
 
 def channel_parameters(text):
-    """Width, viscosity, body force and upper-wall speed from the resolved namelist text."""
+    """The channel of the resolved namelist text, as the program finds it (&run analytic):
+    the wall-normal axis (walls on both of its faces), the flow axis (along the body force,
+    or the moving wall's velocity), and the distance from the resting wall, y = sign *
+    (x[axis] - y0), with the moving wall (Couette) at y = width. Also the viscosity, the
+    drive along the flow (body force, moving wall's speed) and dx. A set-up that is no
+    such channel gets axis None (its case has no analytic solution here)."""
     nml = f90nml.reads(text)
     domain, fluid, run = nml["domain"], nml["fluid"], nml["run"]
+    dim = int(domain.get("dimension", 2))
     lo = np.asarray(domain["box_lo"], dtype=float)
     hi = np.asarray(domain["box_hi"], dtype=float)
     wall = np.asarray(domain["wall_velocity"], dtype=float).reshape(6, 3)
-    return {
-        "case": str(run.get("analytic", "none")).strip().lower(),
-        "y0": lo[1],
-        "width": hi[1] - lo[1],
-        "nu": float(fluid["nu"]),
-        "force": float(np.asarray(fluid["body_force"], dtype=float)[0]),
-        "wall_speed": wall[3, 0],
-        "dx": float(domain["dx"]),
-    }
+    force = np.zeros(3)
+    given = np.asarray(fluid["body_force"], dtype=float).ravel()
+    force[:len(given)] = given
+    boundary = domain.get("boundary", ["periodic"] * 6)
+    boundary = [boundary] if isinstance(boundary, str) else list(boundary)
+    boundary = [str(b).strip().lower() for b in boundary] + ["periodic"] * 6
+    walled = [a for a in range(dim) if boundary[2 * a] == "wall" and boundary[2 * a + 1] == "wall"]
+    axis = walled[0] if len(walled) == 1 else None
+    case = str(run.get("analytic", "none")).strip().lower()
+    par = {"case": case, "axis": axis, "flow": 0, "sign": 1.0, "y0": 0.0, "width": 0.0,
+           "nu": float(fluid["nu"]), "force": 0.0, "wall_speed": 0.0,
+           "dx": float(domain["dx"])}
+    if axis is None:
+        return par
+    par["y0"], par["width"] = lo[axis], hi[axis] - lo[axis]
+    moving = [f for f in (2 * axis, 2 * axis + 1) if np.any(wall[f] != 0.0)]
+    drive = wall[moving[0]] if (case == "couette" and moving) else force
+    along = np.flatnonzero(drive != 0.0)
+    par["flow"] = int(along[0]) if len(along) else (1 if axis == 0 else 0)
+    par["force"] = float(force[par["flow"]])
+    if case == "couette" and moving:
+        par["wall_speed"] = float(wall[moving[0], par["flow"]])
+        if moving[0] == 2 * axis:
+            # the lower wall moves: measured from the upper, resting one
+            par["sign"], par["y0"] = -1.0, hi[axis]
+    return par
+
+
+def wall_distance(par, positions):
+    """The distance of each position from the channel's resting wall (channel_parameters)."""
+    return par["sign"] * (positions[:, par["axis"]] - par["y0"])
 
 
 def snapshot_error(path, case=None, steady=False, level=None, band=None, outside=None):
@@ -60,17 +90,21 @@ def snapshot_error(path, case=None, steady=False, level=None, band=None, outside
         levels = parts["level"][:] if "level" in parts else np.zeros_like(kind)
     par = channel_parameters(text)
     case = case or par["case"]
+    if par["axis"] is None:
+        raise ValueError(f"{path}: not a channel (walls on both faces of one axis, the "
+                         "others periodic): no analytic profile")
     fluid = kind == 0
     if level is not None:
         fluid &= levels == level
+    normal = pos[:, par["axis"]]
     if band is not None:
-        fluid &= (pos[:, 1] >= band[0]) & (pos[:, 1] < band[1])
+        fluid &= (normal >= band[0]) & (normal < band[1])
     if outside is not None:
-        fluid &= (pos[:, 1] < outside[0]) | (pos[:, 1] >= outside[1])
+        fluid &= (normal < outside[0]) | (normal >= outside[1])
     if not fluid.any():
         # (an empty selection has no error: it printed 0 % before)
         raise ValueError("no fluid particle in the selection (--level, --band, --outside)")
-    y = pos[fluid, 1] - par["y0"]
+    y = wall_distance(par, pos[fluid])
     t = np.inf if steady else time
     if case == "poiseuille":
         exact_x = sph_analytic.poiseuille(y, t, par["force"], par["width"], par["nu"])
@@ -79,7 +113,7 @@ def snapshot_error(path, case=None, steady=False, level=None, band=None, outside
     else:
         raise ValueError(f"{path}: no analytic case (input analytic='{case}'); give --case")
     exact = np.zeros_like(vel[fluid])
-    exact[:, 0] = exact_x
+    exact[:, par["flow"]] = exact_x
     norm = np.linalg.norm(exact)
     err = np.linalg.norm(vel[fluid] - exact)
     return time, par, (err / norm if norm > 0 else err), int(fluid.sum())

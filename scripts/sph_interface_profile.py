@@ -93,6 +93,10 @@ def main(argv=None):
     try:
         data = load(args.snapshot)
         par = channel_parameters(data["text"])
+        # (its bins and faces are along y, its profile u along x, from the lower wall)
+        if (par["axis"], par["flow"], par["sign"]) != (1, 0, 1.0):
+            raise ValueError("a channel with walls on the y faces, the flow along x and "
+                             "(Couette) the upper wall moving is needed")
     except (OSError, KeyError, ValueError) as problem:
         print(f"sph_interface_profile: {args.snapshot}: {problem}", file=sys.stderr)
         return 1

@@ -30,7 +30,7 @@ except ImportError as missing:  # pragma: no cover - a message, not a traceback
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import sph_analytic  # noqa: E402
 import sph_snapshot  # noqa: E402
-from sph_error_table import channel_parameters, snapshot_error  # noqa: E402
+from sph_error_table import channel_parameters, snapshot_error, wall_distance  # noqa: E402
 
 si_scale = sph_snapshot.si_scale
 
@@ -134,7 +134,7 @@ def main(argv=None):
         print("sph_plot_profiles: warning: the snapshots come from different set-ups; "
               "the title describes the last one", file=sys.stderr)
 
-    umax = max(np.abs(s[2]["velocity"][s[2]["kind"] == 0, 0]).max() for s in series)
+    umax = max(np.abs(s[2]["velocity"][s[2]["kind"] == 0, s[3]["flow"]]).max() for s in series)
     steady_max = np.abs(exact_profile(par, case, np.linspace(0, par["width"], 201), np.inf)).max()
     vscale, vunit = si_scale(max(umax, steady_max), "m/s")
     lscale, lunit = si_scale(par["width"], "m")
@@ -146,8 +146,8 @@ def main(argv=None):
     for i, (time, path, snap, spar, scase, error) in enumerate(series):
         colour = cmap(i % 10)
         fluid = snap["kind"] == 0
-        y = snap["position"][fluid, 1] - spar["y0"]
-        u = snap["velocity"][fluid, 0]
+        y = wall_distance(spar, snap["position"][fluid])
+        u = snap["velocity"][fluid, spar["flow"]]
         if args.average:
             ym, um, us = level_row_means(y, u, snap["level"][fluid], spar["dx"])
             ax.errorbar(ym / lscale, um / vscale, yerr=us / vscale, fmt="o", ms=3.5, mfc="white",
@@ -170,8 +170,12 @@ def main(argv=None):
     ax.legend(handles, labels, fontsize=8, frameon=True, framealpha=0.9,
               loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2)
     ax.set_xlim(0.0, par["width"] / lscale)
-    ax.set_xlabel(f"$y - y_0$ [{lunit}]")
-    ax.set_ylabel(f"$u_x$ [{vunit}]")
+    # (the channel's own axes: walls on the x faces give u_y against x)
+    names = "xyz"
+    across, along = names[par["axis"]], names[par["flow"]]
+    ax.set_xlabel(f"distance from the resting wall, ${across}$ [{lunit}]" if par["sign"] < 0
+                  else f"${across} - {across}_0$ [{lunit}]")
+    ax.set_ylabel(f"$u_{along}$ [{vunit}]")
     ax.axhline(0.0, color="0.6", lw=0.6, zorder=0)
     n_per_width = par["width"] / par["dx"]
     title = args.title or (f"{case.capitalize()} flow ({int(series[-1][2]['dimension'])}D), "
