@@ -11,7 +11,8 @@
 !>    `.xdmf` and the forces file);
 !>  - a restart at step S: the snapshots, checkpoints and failure snapshots of steps after S,
 !>    the forces file when it has rows after S (the restart continues it from its rows up
-!>    to S) and a copy of the `.xdmf` (the restart writes its own from the checkpoint).
+!>    to S) and a copy of the `.xdmf` (the restart writes its own from the checkpoint), whose
+!>    steps up to S, left where they were, it names as `../<name>`.
 !> A run continued from the newest checkpoint of a run that stopped there (a job chain) has
 !> nothing to set aside. Files of other cases and `.tmp` leftovers are not touched.
 module sph_earlier_output
@@ -188,9 +189,34 @@ contains
             end if
             if (moved == 0) return
             call read_whole(directory // '/' // case_name // '.xdmf', text, read_stat)
-            if (read_stat == 0) call write_whole(folder // '/' // case_name // '.xdmf', text, &
-                read_stat)
+            if (read_stat == 0) call write_whole(folder // '/' // case_name // '.xdmf', &
+                pointing_up(text), read_stat)
         end subroutine split_continued_files
+
+        !> The `.xdmf` text with its snapshots of steps up to after_step (those that stay in
+        !> the folder above the copy) named as `../<name>`: the copy named them bare, so in
+        !> the set-aside folder only the moved, later steps opened.
+        function pointing_up(xdmf) result(copy)
+            character(len=*), intent(in) :: xdmf
+            character(len=:), allocatable :: copy
+            character(len=*), parameter :: MARK = 'Format="HDF">'
+            integer :: at, colon, k
+            integer(i8) :: step
+            copy = ''
+            at = 1
+            do
+                k = index(xdmf(at:), MARK)
+                if (k == 0) exit
+                k = at + k - 1 + len(MARK)
+                copy = copy // xdmf(at:k - 1)
+                colon = index(xdmf(k:), ':')
+                at = k
+                if (colon == 0) cycle
+                step = earlier_file_step(xdmf(k:k + colon - 2), case_name)
+                if (step >= 0_i8 .and. step <= after_step) copy = copy // '../'
+            end do
+            copy = copy // xdmf(at:)
+        end function pointing_up
 
         !> The first `<directory>/<case>_earlier_<N>` that does not exist, made.
         subroutine new_folder(path, st)

@@ -51,8 +51,15 @@ done
 # the restart appended to all of it and the steps ran backwards); the index copied beside them
 cmp -s forces_before_restart.csv "output/${case}_earlier_2/${case}_forces.csv" || \
     fail "the forces file was not set aside whole"
-cmp -s xdmf_before_restart.xdmf "output/${case}_earlier_2/$case.xdmf" || \
-    fail "the index of the set-aside files was not kept"
+# the index beside them opens every step: the moved ones there, the earlier ones (left in
+# place) as ../ (before, the copy named them bare, and 2 of 3 steps did not open)
+"$python" "$checker" "output/${case}_earlier_2/$case.xdmf" > xdmf_2.log 2>&1 || \
+    fail "the index of the set-aside files does not open its snapshots:" xdmf_2.log
+grep -q "\.\./${case}_000000\.h5:" "output/${case}_earlier_2/$case.xdmf" || \
+    fail "the index of the set-aside files does not name the first snapshot in ../"
+[ "$(grep -c 'Format="HDF"' "output/${case}_earlier_2/$case.xdmf")" = \
+  "$(grep -c 'Format="HDF"' xdmf_before_restart.xdmf)" ] || \
+    fail "the index of the set-aside files lost steps"
 awk -F, 'NR > 1 { if ($2 + 0 < last) exit 1; last = $2 + 0 }' "output/${case}_forces.csv" || \
     fail "the continued forces file's steps run backwards"
 grep -q "^ *[0-9.E+-]*,1[0-9][0-9]," "output/${case}_forces.csv" || \
