@@ -1,7 +1,9 @@
 #!/usr/bin/env python3
 """Write the initial particles sphremesh would make for a namelist to an HDF5 file.
 
-    make_initial_particles.py INPUT.nml -o particles.h5
+    make_initial_particles.py INPUT.nml -o particles.h5 [--force]
+
+An existing particles.h5 is kept (the script stops with a message) unless --force.
 
 The file holds the fluid lattice (spacing dx, first site at box_lo + dx/2, row-major in
 x, then y, then z) and, for wall_model = 'morris', the wall particles: every site of the
@@ -21,6 +23,7 @@ handled (the script stops with a message).
 """
 import argparse
 import math
+import os
 import sys
 
 import numpy as np
@@ -41,16 +44,22 @@ def _group(nml, name):
 
 
 def _array(group, key, default, n):
-    """A namelist array with the program's default for every element not given."""
+    """A namelist array with the program's default for every element not given; elements
+    given from an index on (`boundary(3:4) = 'wall', 'wall'`) go there, not to the first
+    ones (they did: the walls went on the x faces, and the program refused the file)."""
     values = [default] * n
     given = group.get(key)
     if given is None:
         return values
     if not isinstance(given, list):
         given = [given]
-    for k, value in enumerate(given[:n]):
-        if value is not None:
-            values[k] = value
+    start = 1
+    first = (getattr(group, "start_index", None) or {}).get(key)
+    if first and first[0] is not None:
+        start = first[0]
+    for k, value in enumerate(given):
+        if value is not None and 0 <= start - 1 + k < n:
+            values[start - 1 + k] = value
     return values
 
 
@@ -140,8 +149,19 @@ def main(argv=None):
         description=__doc__.split("\n\n")[0],
         epilog="Then run with &domain initial_particles = 'FILE' in the same input.")
     parser.add_argument("input", help="the namelist (sphremesh input file)")
-    parser.add_argument("-o", "--output", required=True, help="HDF5 file to write")
+    parser.add_argument("-o", "--output", required=True,
+                        help="HDF5 file to write (a new file, unless --force)")
+    parser.add_argument("--force", action="store_true",
+                        help="replace OUTPUT when it exists")
     args = parser.parse_args(argv)
+    # (a user's file is never replaced without --force: -o INPUT.nml overwrote the input)
+    if os.path.lexists(args.output) and not args.force:
+        sys.exit(f"make_initial_particles: '{args.output}' exists; give another name, or "
+                 "--force to replace it")
+    folder = os.path.dirname(args.output) or "."
+    if not os.path.isdir(folder):
+        sys.exit(f"make_initial_particles: the folder '{folder}' of '{args.output}' does not "
+                 "exist")
     case = read_case(args.input)
     position, kind, ids = make_particles(case)
     with h5py.File(args.output, "w") as f:

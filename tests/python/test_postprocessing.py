@@ -483,6 +483,49 @@ class TestChannelAxes(unittest.TestCase):
         self.assertIsNone(par["axis"])
 
 
+class TestMakeInitialParticles(unittest.TestCase):
+    """make_initial_particles.py never replaces a file without --force (-o INPUT.nml wrote
+    over the input), and puts array elements given from an index where they belong."""
+
+    def setUp(self):
+        self.folder = tempfile.mkdtemp(prefix="sph_maker_")
+        self.addCleanup(shutil.rmtree, self.folder, ignore_errors=True)
+        source = os.path.join(ROOT, "tests", "regression", "poiseuille_short.nml")
+        with open(source) as f:
+            self.text = f.read()
+        self.input = os.path.join(self.folder, "in.nml")
+        with open(self.input, "w") as f:
+            f.write(self.text)
+
+    def test_existing_output_is_kept(self):
+        result = run("make_initial_particles.py", self.input, "-o", self.input)
+        self.assertEqual(result.returncode, 1, result.stdout + result.stderr)
+        self.assertIn("exists; give another name, or --force", result.stderr)
+        with open(self.input) as f:
+            self.assertEqual(f.read(), self.text)
+
+    def test_missing_folder_is_named(self):
+        out = os.path.join(self.folder, "no_such_folder", "p.h5")
+        result = run("make_initial_particles.py", self.input, "-o", out)
+        self.assertEqual(result.returncode, 1, result.stdout + result.stderr)
+        self.assertIn("does not exist", result.stderr)
+        self.assertNotIn("Traceback", result.stderr)
+
+    def test_elements_from_an_index(self):
+        indexed = os.path.join(self.folder, "indexed.nml")
+        with open(indexed, "w") as f:
+            f.write(self.text.replace("boundary = 'periodic', 'periodic', 'wall', 'wall'",
+                                      "boundary(3:4) = 'wall', 'wall'"))
+        counts = []
+        for name in (self.input, indexed):
+            out = name + ".h5"
+            result = run("make_initial_particles.py", name, "-o", out)
+            self.assertEqual(result.returncode, 0, result.stdout + result.stderr)
+            with h5py.File(out, "r") as f:
+                counts.append(int((f["particles/kind"][()] == 1).sum()))
+        self.assertEqual(counts[0], counts[1], "the walls on the same faces")
+
+
 class TestBodyDragTimeAverage(unittest.TestCase):
     """body_drag.time_averaged: the rows' step means weighted by the time each covers."""
 
