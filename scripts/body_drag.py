@@ -79,11 +79,17 @@ def numbers(s):
     return [float(v) for v in re.findall(r'[-+]?\d+\.?\d*(?:[eE][-+]?\d+)?', s)]
 
 
+def body_groups(text):
+    """The &body groups of the stored input, each as its own text (a &region around a body
+    has a shape too: it is no body)."""
+    return ['&body\n' + m.group(1) + '/\n'
+            for m in re.finditer(r'^&body\b(.*?)^/', text, re.M | re.S)]
+
+
 def body_measure(text, name, dim, extent):
     """Area (2D) or volume (3D) of the named body from its &body group; a 3D cylinder runs
     through the box along its axis (extent: the box's side lengths)."""
-    for m in re.finditer(r'^&body\b(.*?)^/', text, re.M | re.S):
-        group = '&body\n' + m.group(1) + '/\n'
+    for group in body_groups(text):
         if re.search(r"name\s*=\s*'" + re.escape(name) + "'", group):
             shape = re.search(r"shape\s*=\s*'(\w+)'", group).group(1)
             if shape in ('circle', 'sphere', 'cylinder'):
@@ -115,8 +121,9 @@ def sangani_acrivos_speed(text, dim, lo, hi, drag, nu, rho0):
     side = hi[0] - lo[0]
     if any(abs((hi[a] - lo[a]) - side) > 1e-12 * side for a in range(dim)):
         return None
-    shapes = re.findall(r"shape\s*=\s*'(\w+)'", text)
-    radius = numbers(values(text, 'radius'))[0] if len(shapes) == 1 else None
+    groups = body_groups(text)
+    shapes = [re.search(r"shape\s*=\s*'(\w+)'", g).group(1) for g in groups]
+    radius = numbers(values(groups[0], 'radius'))[0] if len(shapes) == 1 else None
     if dim == 2 and shapes == ['circle']:
         c = math.pi * radius**2 / side**2
         k = 4.0 * math.pi / (-0.5 * math.log(c) - 0.738 + c - 0.887 * c**2 + 2.038 * c**3)

@@ -526,6 +526,21 @@ class TestMakeInitialParticles(unittest.TestCase):
         self.assertEqual(counts[0], counts[1], "the walls on the same faces")
 
 
+class TestBodyDragReference(unittest.TestCase):
+    """The reference of one circle in a square cell holds with a refinement region around
+    it: a &region's shape = 'body' is no second body (the reference was left out)."""
+
+    def test_region_around_the_body(self):
+        import body_drag
+        body = "&body\n    shape = 'circle'\n    radius = 0.02\n/\n"
+        region = "&region\n    shape = 'body'\n    distance = 0.01\n/\n"
+        lo, hi = [0.0, 0.0], [0.1, 0.1]
+        alone = body_drag.sangani_acrivos_speed(body, 2, lo, hi, 1e-7, 1e-6, 1000.0)
+        banded = body_drag.sangani_acrivos_speed(body + region, 2, lo, hi, 1e-7, 1e-6, 1000.0)
+        self.assertIsNotNone(alone)
+        self.assertEqual(alone, banded)
+
+
 class TestBodyDragTimeAverage(unittest.TestCase):
     """body_drag.time_averaged: the rows' step means weighted by the time each covers."""
 
