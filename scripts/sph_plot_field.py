@@ -92,11 +92,17 @@ def main(argv=None):
     parser.add_argument("--output", "-o", required=True, metavar="FILE.png", help="image to write")
     parser.add_argument("--cmap", help="matplotlib colour map (default: viridis, or RdBu_r "
                                        "centred on 0 for fields of both signs)")
-    parser.add_argument("--vmin", type=float, help="lower end of the colour scale")
-    parser.add_argument("--vmax", type=float, help="upper end of the colour scale")
+    parser.add_argument("--vmin", type=float,
+                        help="lower end of the colour scale, in the field's SI unit")
+    parser.add_argument("--vmax", type=float,
+                        help="upper end of the colour scale, in the field's SI unit")
     parser.add_argument("--title", help="plot title")
     parser.add_argument("--dpi", type=int, default=200, help="resolution (default 200)")
     args = parser.parse_args(argv)
+    if args.dpi <= 0:
+        parser.error("--dpi must be positive")
+    if args.vmin is not None and args.vmax is not None and not args.vmin < args.vmax:
+        parser.error("--vmin must be below --vmax")
     try:
         wanted = parse_kinds(args.kinds)
         snap = sph_snapshot.load(args.snapshot)
@@ -164,8 +170,10 @@ def main(argv=None):
         cmap = ListedColormap(colours)
         norm = BoundaryNorm(levels, cmap.N)
     else:
-        vmin = args.vmin if args.vmin is not None else float(v.min())
-        vmax = args.vmax if args.vmax is not None else float(v.max())
+        # (the limits are SI, as the field in the file; the colour bar's unit is picked from
+        # the data, so they are scaled with it: they were taken in that unit)
+        vmin = args.vmin / vscale if args.vmin is not None else float(v.min())
+        vmax = args.vmax / vscale if args.vmax is not None else float(v.max())
         signed = args.vmin is None and args.vmax is None and vmin < 0 < vmax
         if signed:
             vmax = max(-vmin, vmax)

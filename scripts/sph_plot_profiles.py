@@ -102,8 +102,11 @@ def main(argv=None):
     parser.add_argument("--initial", action="store_true",
                         help="include the t = 0 snapshot (fluid at rest)")
     parser.add_argument("--title", help="plot title (default: case, dimension and dx/L)")
-    parser.add_argument("--dpi", type=int, default=200, help="resolution of raster output (default 200)")
+    parser.add_argument("--dpi", type=int, default=200,
+                        help="resolution of raster output (default 200)")
     args = parser.parse_args(argv)
+    if args.dpi <= 0:
+        parser.error("--dpi must be positive")
 
     try:
         files = collect(args.inputs)

@@ -365,6 +365,19 @@ class TestPlots(PostProcessingTestCase):
             self.assertIn("usage:", result.stdout)
 
 
+class TestPlotOptions(unittest.TestCase):
+    """Options the plot scripts refuse with a message (a traceback or a broken colour bar
+    before)."""
+
+    def test_refused_options(self):
+        for script, extra in (("sph_plot_field.py", ["--vmin", "1", "--vmax", "0"]),
+                              ("sph_plot_field.py", ["--dpi", "0"]),
+                              ("sph_plot_profiles.py", ["--dpi", "0"])):
+            result = run(script, "no_such.h5", "-o", "x.png", *extra)
+            self.assertEqual(result.returncode, 2, result.stdout + result.stderr)
+            self.assertNotIn("Traceback", result.stderr)
+
+
 class TestXdmf(PostProcessingTestCase):
 
     def broken_copy(self, old, new, count=1):
