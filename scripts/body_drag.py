@@ -183,24 +183,35 @@ def time_averaged(rows, last, key, out):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('output_dirs', nargs='+')
     ap.add_argument('--case', default=None,
                     help="the runs' case name (&run case_name); by default each directory's "
                          "from its one <case>_forces.csv")
-    ap.add_argument('--body', default='cylinder')
+    ap.add_argument('--body', default='cylinder',
+                    help="the body's &body name (default cylinder)")
     ap.add_argument('--fraction', type=float, default=0.5,
-                    help='average the rows of the last fraction of the run time')
+                    help='average the rows of the last fraction of the run time (0 < f <= 1)')
     ap.add_argument('--time-averaged', action='store_true',
                     help="average the rows' step means (Fx_mean, ...: the force averaged over "
                          "the steps since the previous row), weighted by the time each covers, "
                          "instead of the instantaneous forces of the rows")
-    ap.add_argument('--max-imbalance', type=float, default=None, help='percent')
-    ap.add_argument('--require-convergence', action='store_true')
+    ap.add_argument('--max-imbalance', type=float, default=None,
+                    help='percent: fail when the drag and the body force on the fluid differ '
+                         'by more than this')
+    ap.add_argument('--require-convergence', action='store_true',
+                    help='fail unless each change of the resistance between successive runs '
+                         'is at most half the previous one')
     ap.add_argument('--max-reference-deviation', type=float, default=None,
                     help="percent: fail when the mean fluid velocity is farther from Sangani & "
                          "Acrivos' (only for creeping flow, where their expansion holds)")
     args = ap.parse_args()
+    # (a negative fraction indexed past the rows: a traceback)
+    if not 0.0 < args.fraction <= 1.0:
+        ap.error('--fraction must lie in (0, 1]')
+    for out in args.output_dirs:
+        if not os.path.isdir(out):
+            ap.error(f"'{out}' is not a directory (give the runs' output folders)")
 
     drags, speeds, resistances, failed = [], [], [], False
     for out in args.output_dirs:

@@ -81,7 +81,7 @@ def weighted(x, values, point, h):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('output_dir')
     ap.add_argument('--case', default='cavity')
     ap.add_argument('--fraction', type=float, default=0.2)
@@ -144,6 +144,14 @@ def main():
     print(f'RMS error {rms:.3f} % of U, largest {largest:.3f} % of U')
 
     if args.figure:
+        # (a missing folder or an unknown extension: a traceback from savefig before)
+        folder = os.path.dirname(args.figure) or '.'
+        if not os.path.isdir(folder):
+            sys.exit(f"cavity_ghia: the folder '{folder}' of --figure does not exist")
+        if os.path.splitext(args.figure)[1].lower() not in ('.png', '.pdf', '.svg', '.jpg',
+                                                            '.jpeg', '.eps', '.ps'):
+            sys.exit(f"cavity_ghia: --figure '{args.figure}': give a .png, .pdf, .svg, .jpg "
+                     "or .eps name")
         import matplotlib
         matplotlib.use('Agg')
         import matplotlib.pyplot as plt

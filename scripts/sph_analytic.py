@@ -34,3 +34,11 @@ def poiseuille(y, t, force, width, nu, terms=2000):
         if decay < 1e-18:
             break
     return v
+
+
+if __name__ == "__main__":
+    import sys
+    # (a library of the other scripts: run on its own it did nothing, and said nothing)
+    sys.exit("sph_analytic.py is a module of the post-processing scripts (import "
+             "sph_analytic; couette(y, t, U, L, nu), poiseuille(y, t, F, L, nu)); to compare "
+             "snapshots with these profiles use scripts/sph_error_table.py")

@@ -944,7 +944,7 @@ def git_stamp():
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--only", nargs="+", choices=sorted(CASES), help="run these cases")
     parser.add_argument("--skip-long", action="store_true", help="leave out the long cases")
     parser.add_argument("--reuse", action="store_true",
