@@ -133,19 +133,22 @@ def main(argv=None):
                         help="only the particles with y < YLO or y >= YHI (m)")
     args = parser.parse_args(argv)
     print(f"{'file':<48} {'t [s]':>10} {'dx/L':>8} {'fluid':>7} {'rel. L2 error':>14}")
+    status = 0
     for path in args.snapshots:
         try:
             time, par, err, n = snapshot_error(path, args.case, args.steady, args.level,
                                                args.band, args.outside)
         except (OSError, KeyError, ValueError) as problem:
+            # (the others are still reported: a glob's first bad file hid the rest)
             print(f"sph_error_table: {path}: {problem}", file=sys.stderr)
-            return 1
+            status = 1
+            continue
         if time == 0 and not args.steady:
             continue
         # the spacing of the level asked for (level L: dx / 2^L)
         spacing = par["dx"] / 2 ** (args.level or 0)
         print(f"{path:<48} {time:10.4g} {spacing / par['width']:8.4f} {n:7d} {100 * err:13.4f}%")
-    return 0
+    return status
 
 
 if __name__ == "__main__":

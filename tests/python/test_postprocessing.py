@@ -280,6 +280,18 @@ class TestErrorTable(PostProcessingTestCase):
         result = run("sph_error_table.py", "--level", "5", self.paths[-1])
         self.assertCleanFailure(result, "no fluid particle in the selection")
 
+    def test_all_files_reported(self):
+        # a file it cannot use among others: the others are still reported, the status is 1
+        folder = tempfile.mkdtemp(prefix="sph_pp_table_")
+        self.addCleanup(shutil.rmtree, folder, ignore_errors=True)
+        bad = os.path.join(folder, "bad.h5")
+        with open(bad, "wb") as f:
+            f.write(b"not hdf5")
+        result = run("sph_error_table.py", bad, self.paths[-1])
+        self.assertEqual(result.returncode, 1, result.stdout + result.stderr)
+        self.assertIn(os.path.basename(self.paths[-1]), result.stdout)
+        self.assertIn("bad.h5", result.stderr)
+
     def test_compare_nan_and_unreadable(self):
         # the same NaN in both files agrees (a failure snapshot and its copy differed); a NaN
         # against a number differs; an unreadable file is status 2, not a difference
