@@ -83,12 +83,16 @@ def snapshot_error(path, case=None, steady=False, level=None, band=None, outside
         time = float(f.attrs["time"])
         text = f.attrs["input"]
         text = text.decode() if isinstance(text, bytes) else str(text)
+        stored_dx = float(f.attrs["dx"]) if "dx" in f.attrs else 0.0
         parts = f["particles"]
         kind = parts["kind"][:]
         pos = parts["position"][:]
         vel = parts["velocity"][:]
         levels = parts["level"][:] if "level" in parts else np.zeros_like(kind)
     par = channel_parameters(text)
+    if stored_dx > 0:
+        # (a remeshed checkpoint: its input keeps the spacing the run began with)
+        par["dx"] = stored_dx
     case = case or par["case"]
     if par["axis"] is None:
         raise ValueError(f"{path}: not a channel (walls on both faces of one axis, the "

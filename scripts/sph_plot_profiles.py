@@ -114,6 +114,9 @@ def main(argv=None):
         for path in files:
             snap = sph_snapshot.load(path)
             par = channel_parameters(snap["input"])
+            # (a remeshed checkpoint's spacing: its attribute dx, not its input's)
+            if isinstance(snap["attrs"].get("dx"), (int, float)) and snap["attrs"]["dx"] > 0:
+                par["dx"] = float(snap["attrs"]["dx"])
             case = args.case or par["case"]
             if case not in ("poiseuille", "couette"):
                 raise ValueError(f"{path}: the input has analytic = '{case}'; "

@@ -106,8 +106,9 @@ def namelist(snap):
 
 
 def geometry(snap):
-    """dimension, dx, box_lo (3), box_hi (3) of a loaded snapshot, from its input text; the
-    box and dx are estimated from the particles if the input cannot be read."""
+    """dimension, dx, box_lo (3), box_hi (3) of a loaded snapshot, from its input text (dx:
+    a remeshed checkpoint's attribute dx); the box and dx are estimated from the particles
+    if the input cannot be read."""
     dim = int(snap["attrs"]["dimension"])
     try:
         domain = namelist(snap)["domain"]
@@ -116,6 +117,11 @@ def geometry(snap):
         hi = np.zeros(3)
         lo[:dim] = np.asarray(domain["box_lo"], dtype=float)[:dim]
         hi[:dim] = np.asarray(domain["box_hi"], dtype=float)[:dim]
+        # a remeshed checkpoint's spacing is its root attribute dx: its input keeps the
+        # spacing the run began with (an L/10 coarsening was reported as L/20)
+        stored = snap["attrs"].get("dx")
+        if isinstance(stored, (int, float)) and stored > 0:
+            dx = float(stored)
     except Exception:  # no or odd input text: estimate from the particles
         pos = snap["position"]
         h = snap["smoothing_length"]
