@@ -71,6 +71,12 @@ def load(path, check_format=True):
     try:
         with h5py.File(path, "r") as f:
             attrs = {key: _plain(value) for key, value in f.attrs.items()}
+            # (a file sphremesh did not write: an initial particle file, another tool's, was
+            # called an incomplete snapshot, the message of a write that crashed)
+            if "format" not in attrs and "write_complete" not in attrs:
+                raise SnapshotError(f"{path}: not a sphremesh snapshot or checkpoint (no "
+                                    "format attribute: an initial particle file, or another "
+                                    "tool's?)")
             if attrs.get("write_complete") != 1:
                 raise SnapshotError(f"{path}: incomplete snapshot (no write_complete marker)")
             if check_format and (attrs.get("format") != FORMAT
@@ -149,7 +155,7 @@ def si_scale(largest, unit):
 
 
 def list_snapshots(directory, case=None):
-    """Snapshot files (not checkpoints, not *.tmp) in a directory, sorted by step.
+    """Snapshot files (not checkpoints, failure snapshots or *.tmp) in a directory, by step.
 
     ``case`` keeps only <case>_<step>.h5; without it, all cases are listed.
     Raises SnapshotError if the directory does not exist."""
@@ -158,7 +164,8 @@ def list_snapshots(directory, case=None):
     found = []
     for name in os.listdir(directory):
         match = SNAPSHOT_NAME.match(name)
-        if not match or "_checkpoint_" in name:
+        # (a failure snapshot is the state a run stopped in, not one of its output times)
+        if not match or "_checkpoint_" in name or "_failure_" in name:
             continue
         if case and match.group("case") != case:
             continue
