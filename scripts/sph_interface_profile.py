@@ -103,6 +103,14 @@ def main(argv=None):
     rho0 = float(f90nml.reads(data["text"])["fluid"]["rho0"])
     y_lo, y_hi = par["y0"], par["y0"] + par["width"]
     faces = args.interfaces or region_interfaces(data["text"], y_lo, y_hi)
+    # (an empty table with status 0 read as a pass)
+    if not faces:
+        print(f"sph_interface_profile: {args.snapshot}: no interface between levels across "
+              "the channel (&region slabs along y); give --interfaces", file=sys.stderr)
+        return 1
+    if args.bin is not None and not args.bin > 0:
+        print("sph_interface_profile: --bin must be positive (m)", file=sys.stderr)
+        return 1
     width = args.bin or float(f90nml.reads(data["text"])["domain"]["dx"])
     print(f"{args.snapshot}: t = {data['time']:.6g} s, bins of {width:.4g} m")
     print(f"{'interface y [m]':>16} {'rho below':>12} {'rho above':>12} {'jump [% rho0]':>14} "
@@ -142,13 +150,16 @@ def draw(args, data, par, faces, width):
     import matplotlib.pyplot as plt
     fig, (ax_u, ax_rho) = plt.subplots(1, 2, figsize=(10, 4.5))
     y = np.linspace(par["y0"], par["y0"] + par["width"], 400)
+    # (only for a case that has one: a zero 'analytic' line was drawn for the others)
+    exact = None
     if par["case"] == "poiseuille":
         exact = sph_analytic.poiseuille(y - par["y0"], data["time"], par["force"], par["width"],
                                         par["nu"])
-    else:
+    elif par["case"] == "couette":
         exact = sph_analytic.couette(y - par["y0"], data["time"], par["wall_speed"],
                                      par["width"], par["nu"])
-    ax_u.plot(exact, y, "k-", lw=1, label="analytic")
+    if exact is not None:
+        ax_u.plot(exact, y, "k-", lw=1, label="analytic")
     real = data["kind"] == 0
     for level, colour in zip(range(4), ["tab:blue", "tab:orange", "tab:green", "tab:red"]):
         mask = real & (data["level"] == level)
