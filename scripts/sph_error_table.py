@@ -32,13 +32,15 @@ except ImportError as missing:  # pragma: no cover - a message, not a traceback
 import sph_analytic
 
 
-def channel_parameters(text):
+def channel_parameters(text, case=None):
     """The channel of the resolved namelist text, as the program finds it (&run analytic):
     the wall-normal axis (walls on both of its faces), the flow axis (along the body force,
     or the moving wall's velocity), and the distance from the resting wall, y = sign *
     (x[axis] - y0), with the moving wall (Couette) at y = width. Also the viscosity, the
     drive along the flow (body force, moving wall's speed) and dx. A set-up that is no
-    such channel gets axis None (its case has no analytic solution here)."""
+    such channel gets axis None (its case has no analytic solution here). case overrides
+    the input's analytic key (--case), which decides the drive: a moving wall's velocity
+    (Couette) or the body force."""
     nml = f90nml.reads(text)
     domain, fluid, run = nml["domain"], nml["fluid"], nml["run"]
     dim = int(domain.get("dimension", 2))
@@ -53,7 +55,7 @@ def channel_parameters(text):
     boundary = [str(b).strip().lower() for b in boundary] + ["periodic"] * 6
     walled = [a for a in range(dim) if boundary[2 * a] == "wall" and boundary[2 * a + 1] == "wall"]
     axis = walled[0] if len(walled) == 1 else None
-    case = str(run.get("analytic", "none")).strip().lower()
+    case = case or str(run.get("analytic", "none")).strip().lower()
     par = {"case": case, "axis": axis, "flow": 0, "sign": 1.0, "y0": 0.0, "width": 0.0,
            "nu": float(fluid["nu"]), "force": 0.0, "wall_speed": 0.0,
            "dx": float(domain["dx"])}
@@ -89,11 +91,11 @@ def snapshot_error(path, case=None, steady=False, level=None, band=None, outside
         pos = parts["position"][:]
         vel = parts["velocity"][:]
         levels = parts["level"][:] if "level" in parts else np.zeros_like(kind)
-    par = channel_parameters(text)
+    par = channel_parameters(text, case)
     if stored_dx > 0:
         # (a remeshed checkpoint: its input keeps the spacing the run began with)
         par["dx"] = stored_dx
-    case = case or par["case"]
+    case = par["case"]
     if par["axis"] is None:
         raise ValueError(f"{path}: not a channel (walls on both faces of one axis, the "
                          "others periodic): no analytic profile")
@@ -132,7 +134,8 @@ def main(argv=None):
                         help="compare with the steady profile instead of the transient one")
     parser.add_argument("--level", type=int, help="only the real particles of this level")
     parser.add_argument("--band", type=float, nargs=2, metavar=("YLO", "YHI"),
-                        help="only the particles with YLO <= y < YHI (m)")
+                        help="only the particles with YLO <= y < YHI (m), y the coordinate "
+                             "across the channel")
     parser.add_argument("--outside", type=float, nargs=2, metavar=("YLO", "YHI"),
                         help="only the particles with y < YLO or y >= YHI (m)")
     args = parser.parse_args(argv)

@@ -36,7 +36,8 @@ si_scale = sph_snapshot.si_scale
 
 
 def exact_profile(par, case, y, t):
-    """Analytic u_x at heights y above the lower wall, time t (inf: steady)."""
+    """Analytic velocity along the flow at distances y from the resting wall (wall_distance),
+    time t (inf: steady)."""
     if case == "poiseuille":
         return sph_analytic.poiseuille(y, t, par["force"], par["width"], par["nu"])
     if case == "couette":
@@ -113,11 +114,11 @@ def main(argv=None):
         series = []
         for path in files:
             snap = sph_snapshot.load(path)
-            par = channel_parameters(snap["input"])
+            par = channel_parameters(snap["input"], args.case)
             # (a remeshed checkpoint's spacing: its attribute dx, not its input's)
             if isinstance(snap["attrs"].get("dx"), (int, float)) and snap["attrs"]["dx"] > 0:
                 par["dx"] = float(snap["attrs"]["dx"])
-            case = args.case or par["case"]
+            case = par["case"]
             if case not in ("poiseuille", "couette"):
                 raise ValueError(f"{path}: the input has analytic = '{case}'; "
                                  "give --case poiseuille or --case couette")

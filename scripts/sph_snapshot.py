@@ -165,7 +165,7 @@ def list_snapshots(directory, case=None):
     for name in os.listdir(directory):
         match = SNAPSHOT_NAME.match(name)
         # (a failure snapshot is the state a run stopped in, not one of its output times)
-        if not match or "_checkpoint_" in name or "_failure_" in name:
+        if not match or match.group("case").endswith(("_checkpoint", "_failure")):
             continue
         if case and match.group("case") != case:
             continue

@@ -11,14 +11,14 @@
 !>    `.xdmf` and the forces file);
 !>  - a restart at step S: the snapshots, checkpoints and failure snapshots of steps after S,
 !>    the forces file when it has rows after S (the restart continues it from its rows up
-!>    to S) and a copy of the `.xdmf` (the restart writes its own from the checkpoint), whose
-!>    steps up to S, left where they were, it names as `../<name>`.
+!>    to S) and a copy of the `.xdmf` (the restart writes its own from the checkpoint), with
+!>    the snapshots of steps up to S, left where they were, linked beside it (hard links).
 !> A run continued from the newest checkpoint of a run that stopped there (a job chain) has
 !> nothing to set aside. Files of other cases and `.tmp` leftovers are not touched.
 module sph_earlier_output
     use sph_kinds, only: i8
     use sph_mpi_env, only: mpi_env_t, broadcast_text
-    use sph_filesystem, only: list_directory, make_directories, rename_file
+    use sph_filesystem, only: list_directory, make_directories, rename_file, link_file
     use sph_text_lines, only: next_line
     implicit none
     private
@@ -189,34 +189,51 @@ contains
             end if
             if (moved == 0) return
             call read_whole(directory // '/' // case_name // '.xdmf', text, read_stat)
-            if (read_stat == 0) call write_whole(folder // '/' // case_name // '.xdmf', &
-                pointing_up(text), read_stat)
+            if (read_stat == 0) call write_series_copy(text, folder // '/' // case_name // &
+                '.xdmf')
         end subroutine split_continued_files
 
-        !> The `.xdmf` text with its snapshots of steps up to after_step (those that stay in
-        !> the folder above the copy) named as `../<name>`: the copy named them bare, so in
-        !> the set-aside folder only the moved, later steps opened.
-        function pointing_up(xdmf) result(copy)
-            character(len=*), intent(in) :: xdmf
-            character(len=:), allocatable :: copy
+        !> The `.xdmf` text written to `path` for the set-aside folder: its snapshots of steps
+        !> up to after_step stay in the folder above (the copy named them bare, and in the
+        !> folder only the moved, later steps opened). Each is linked into the folder (a hard
+        !> link: no copy, and it stays whole there when a later run moves or replaces the
+        !> one above); where a link cannot be made, the copy names it as `../<name>`. Written
+        !> piece by piece (a series of 10^4 snapshots is MBs of text).
+        subroutine write_series_copy(xdmf, path)
+            character(len=*), intent(in) :: xdmf, path
             character(len=*), parameter :: MARK = 'Format="HDF">'
-            integer :: at, colon, k
-            integer(i8) :: step
-            copy = ''
+            integer :: at, colon, k, unit, st
+            integer(i8) :: step, last_step
+            logical :: linked
+            open(newunit=unit, file=path // '.tmp', access='stream', form='unformatted', &
+                status='replace', action='write', iostat=st)
+            if (st /= 0) return
+            last_step = -1_i8
+            linked = .true.
             at = 1
             do
                 k = index(xdmf(at:), MARK)
                 if (k == 0) exit
                 k = at + k - 1 + len(MARK)
-                copy = copy // xdmf(at:k - 1)
+                write(unit) xdmf(at:k - 1)
                 colon = index(xdmf(k:), ':')
                 at = k
                 if (colon == 0) cycle
                 step = earlier_file_step(xdmf(k:k + colon - 2), case_name)
-                if (step >= 0_i8 .and. step <= after_step) copy = copy // '../'
+                if (step < 0_i8 .or. step > after_step) cycle
+                ! (a step's many items name one file: linked once)
+                if (step /= last_step) then
+                    call link_file(directory // '/' // xdmf(k:k + colon - 2), folder // '/' // &
+                        xdmf(k:k + colon - 2), st)
+                    linked = st == 0
+                    last_step = step
+                end if
+                if (.not. linked) write(unit) '../'
             end do
-            copy = copy // xdmf(at:)
-        end function pointing_up
+            write(unit) xdmf(at:)
+            close(unit)
+            call rename_file(path // '.tmp', path, st)
+        end subroutine write_series_copy
 
         !> The first `<directory>/<case>_earlier_<N>` that does not exist, made.
         subroutine new_folder(path, st)

@@ -1,11 +1,11 @@
-!> File-system operations Fortran lacks, in one place: mkdir -p, rename, delete and directory
+!> File-system operations Fortran lacks, in one place: mkdir -p, rename, link, delete and directory
 !> listing (libc through bind(C); the listing through sph_directory.c). Serial: the caller
 !> decides which rank acts.
 module sph_filesystem
     use, intrinsic :: iso_c_binding, only: c_char, c_int, c_null_char
     implicit none
     private
-    public :: make_directories, rename_file, delete_file, list_directory
+    public :: make_directories, rename_file, link_file, delete_file, list_directory
     public :: MAX_FILE_PATH
 
     !> The longest file path handed to HDF5 over MPI-IO: Open MPI's I/O component (4.1)
@@ -23,6 +23,10 @@ module sph_filesystem
             import :: c_char, c_int
             character(kind=c_char), intent(in) :: old(*), new(*)
         end function c_rename
+        integer(c_int) function c_link(old, new) bind(C, name="link")
+            import :: c_char, c_int
+            character(kind=c_char), intent(in) :: old(*), new(*)
+        end function c_link
         integer(c_int) function c_list_directory(path, buffer, capacity) &
                 bind(C, name="sph_list_directory")
             import :: c_char, c_int
@@ -66,6 +70,16 @@ contains
         stat = 0
         if (c_rename(from // c_null_char, to // c_null_char) /= 0) stat = 1
     end subroutine rename_file
+
+    !> A second name `to` for the file `from` (a hard link: no copy, and the file stays
+    !> whole under `to` when `from` is later moved or removed). stat /= 0 on failure (another
+    !> file system, a file system without links, `to` exists).
+    subroutine link_file(from, to, stat)
+        character(len=*), intent(in) :: from, to
+        integer, intent(out) :: stat
+        stat = 0
+        if (c_link(from // c_null_char, to // c_null_char) /= 0) stat = 1
+    end subroutine link_file
 
     !> Remove a file if it exists.
     subroutine delete_file(path)

@@ -160,9 +160,6 @@ class VolumeSumTest(unittest.TestCase):
         self.assertGreater(stats["volume_sum_spread"], 0.01)
 
 
-if __name__ == "__main__":
-    unittest.main()
-
 class LevelsTest(unittest.TestCase):
     """A multi-resolution snapshot: two even lattices (spacings 1 and 1/2, the fine one in
     y < 2). Mixed, their nearest distances read as a disorder (CoV 0.3); measured one level
@@ -182,3 +179,7 @@ class LevelsTest(unittest.TestCase):
                 self.assertAlmostEqual(s["mean_nn"], spacing)
                 self.assertAlmostEqual(s["cov_nn"], 0.0)
                 self.assertTrue(math.isnan(s["volume_sum_mean"]))
+
+
+if __name__ == "__main__":
+    unittest.main()

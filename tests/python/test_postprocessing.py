@@ -502,6 +502,16 @@ class TestChannelAxes(unittest.TestCase):
         y = sph_error_table.wall_distance(par, np.array([[0.0, 0.0, 0.0], [0.0, 0.5e-3, 0.0]]))
         np.testing.assert_allclose(y, [0.5e-3, 0.0], atol=1e-18)
 
+    def test_case_given_on_the_command_line(self):
+        # an input with analytic = 'none' and --case couette: the drive is the moving wall
+        # (the velocities' norm was printed as the relative error)
+        for face, sign in ((3, 1.0), (2, -1.0)):
+            par = sph_error_table.channel_parameters(self.text(
+                "boundary='periodic','periodic','wall','wall','periodic','periodic'",
+                "0.0, 0.0, 0.0", "none", moving_face=face), "couette")
+            self.assertEqual((par["case"], par["sign"]), ("couette", sign))
+            self.assertAlmostEqual(par["wall_speed"], 2.5e-5)
+
     def test_not_a_channel(self):
         par = sph_error_table.channel_parameters(self.text(
             "boundary='wall','wall','wall','wall','periodic','periodic'", "0.0, 0.0, 0.0", "none"))

@@ -8,8 +8,9 @@ positions stored as int16), nan_density, huge_density (1e300 kg/m^3), nan_energy
 nan_wall_normal, level_one (every particle at level 1), solid_out_of_range (the walls
 labelled solid 7 of 2), solid_swapped (the two walls' labels exchanged), deep_wall (a wall
 particle 1 m below its wall), no_walls (the wall particles left out), huge_id (an id of
-2^60), float_dimension (the root attribute 2.0) (one defect each), or shuffled (the same
-particles, rows in a random order). GOOD.h5 is a file made by
+2^60), float_dimension (the root attribute 2.0), fluid_past_slack (a fluid particle 0.3 h
+beyond a wall face) (one defect each), fluid_in_slack (0.1 h beyond: taken), or shuffled
+(the same particles, rows in a random order). GOOD.h5 is a file made by
 scripts/make_initial_particles.py for a channel with walls on ylo (solid 1) and yhi
 (solid 2).
 """
@@ -64,6 +65,11 @@ def main(good, kind, out):
         data["id"][0] = 2**60
     elif kind == "float_dimension":
         pass   # the attribute below
+    elif kind in ("fluid_in_slack", "fluid_past_slack"):
+        # the first fluid particle 0.1 h or 0.3 h below the ylo wall (h = 1.3 dx = 3.25e-5 m):
+        # the health check takes 0.2 h, and so does a file start
+        first = np.flatnonzero(data["kind"] == 0)[0]
+        data["position"][first, 1] = -(0.1 if kind == "fluid_in_slack" else 0.3) * 3.25e-5
     else:
         sys.exit(f"make_bad_particles: unknown kind '{kind}'")
     with h5py.File(out, "w") as f:
