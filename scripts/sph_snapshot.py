@@ -213,6 +213,9 @@ def summary(path):
              f"  written {a.get('date', '?')} by {a.get('code_version', '?')}; "
              f"format {a.get('format', '?')} v{a.get('format_version', '?')}; "
              f"input {len(a.get('input', ''))} characters"]
+    # (a failure snapshot: the state a run stopped in, and why)
+    if a.get("failure"):
+        lines.append(f"  failure snapshot: {a['failure']}")
     try:
         run = namelist(snap)["run"]
         geo = geometry(snap)

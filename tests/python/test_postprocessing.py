@@ -227,10 +227,11 @@ class TestSnapshot(PostProcessingTestCase):
         self.assertAlmostEqual(geo["dx"], 1e-4)
 
     def test_list_snapshots_sorted_by_step(self):
-        # decoys: a checkpoint, an unfinished .tmp, another case, a 7-digit step
+        # decoys: a checkpoint, a failure snapshot, an unfinished .tmp, another case, a
+        # 7-digit step
         extra = tempfile.mkdtemp(dir=self.folder)
         for name in ("a_000010.h5", "a_000002.h5", "a_1000000.h5", "a_checkpoint_000010.h5",
-                     "a_000011.h5.tmp", "b_000005.h5", "a.xdmf"):
+                     "a_failure_000012.h5", "a_000011.h5.tmp", "b_000005.h5", "a.xdmf"):
             open(os.path.join(extra, name), "w").close()
         names = [os.path.basename(p) for p in sph_snapshot.list_snapshots(extra, case="a")]
         self.assertEqual(names, ["a_000002.h5", "a_000010.h5", "a_1000000.h5"])
@@ -263,6 +264,13 @@ class TestSnapshot(PostProcessingTestCase):
         self.assertCleanFailure(run("sph_snapshot.py", os.path.join(self.folder, "nope.h5")),
                                 "nope.h5")
         self.assertCleanFailure(run("sph_snapshot.py", self.xdmf), "not a readable HDF5 file")
+        # a failure snapshot says why the run stopped
+        failed = os.path.join(tempfile.mkdtemp(dir=self.folder), "a_failure_000009.h5")
+        shutil.copy(self.paths[-1], failed)
+        with h5py.File(failed, "r+") as f:
+            f.attrs["failure"] = "health check: a fluid density outside the band"
+        result = run("sph_snapshot.py", failed)
+        self.assertIn("failure snapshot: health check: a fluid density", result.stdout)
 
 
 class TestErrorTable(PostProcessingTestCase):
