@@ -202,12 +202,12 @@ contains
         subroutine write_series_copy(xdmf, path)
             character(len=*), intent(in) :: xdmf, path
             character(len=*), parameter :: MARK = 'Format="HDF">'
-            integer :: at, colon, k, unit, st
+            integer :: at, colon, k, unit, st, io
             integer(i8) :: step, last_step
             logical :: linked
             open(newunit=unit, file=path // '.tmp', access='stream', form='unformatted', &
-                status='replace', action='write', iostat=st)
-            if (st /= 0) return
+                status='replace', action='write', iostat=io)
+            if (io /= 0) return
             last_step = -1_i8
             linked = .true.
             at = 1
@@ -215,7 +215,7 @@ contains
                 k = index(xdmf(at:), MARK)
                 if (k == 0) exit
                 k = at + k - 1 + len(MARK)
-                write(unit) xdmf(at:k - 1)
+                if (io == 0) write(unit, iostat=io) xdmf(at:k - 1)
                 colon = index(xdmf(k:), ':')
                 at = k
                 if (colon == 0) cycle
@@ -228,11 +228,16 @@ contains
                     linked = st == 0
                     last_step = step
                 end if
-                if (.not. linked) write(unit) '../'
+                if (.not. linked .and. io == 0) write(unit, iostat=io) '../'
             end do
-            write(unit) xdmf(at:)
-            close(unit)
-            call rename_file(path // '.tmp', path, st)
+            if (io == 0) write(unit, iostat=io) xdmf(at:)
+            ! (a copy that could not be written whole is not left half-written)
+            if (io == 0) then
+                close(unit)
+                call rename_file(path // '.tmp', path, st)
+            else
+                close(unit, status='delete')
+            end if
         end subroutine write_series_copy
 
         !> The first `<directory>/<case>_earlier_<N>` that does not exist, made.
