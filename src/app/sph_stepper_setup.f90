@@ -6,6 +6,9 @@ submodule (sph_stepper) sph_stepper_setup
     use sph_domain, only: domain_owner
     use sph_logger, only: log_warn, int_text, sci_text
     use sph_text_lines, only: next_line
+    use sph_snapshot, only: read_snapshot_header
+    use sph_checkpoint, only: stored_spacing
+    use sph_config, only: config_to_text
     implicit none
 
 contains
@@ -104,11 +107,14 @@ contains
         real(wp), allocatable :: balance(:)
         integer :: n
         character(len=:), allocatable :: what, walls_changed
+        !> the input the run goes on with: cfg, at the checkpoint's spacing when a remesh in
+        !> the run changed it (take_remeshed_spacing)
+        type(config_t) :: given
 
         what = 'restart'
         if (present(label)) what = label
         walls_changed = ''
-        call setup_common(sim, env, cfg)
+        ! the checkpoint first: the run may go on at its spacing (given)
         inquire(file=trim(from) // '/.', exist=is_directory)
         if (is_directory) then
             call find_latest_checkpoint(env, from, trim(cfg%run%case_name), path, skipped, stat, &
@@ -119,6 +125,12 @@ contains
         else
             path = from
         end if
+        given = cfg
+        call take_remeshed_spacing(env, path, what, given)
+        call setup_common(sim, env, given)
+        ! the input as given goes into the run's files, as the run that wrote the checkpoint
+        ! stored it (its spacing beside it): the next restart takes it the same way
+        sim%input_text = config_to_text(cfg)
         call read_checkpoint(env, path, sim%p, sim%domain, sim%time, sim%step, stored_input, &
             index_text, same_layout, stat, errmsg, stored_dx, balance)
         if (stat /= 0) call fatal_collective(what, errmsg)
@@ -175,19 +187,19 @@ contains
         end if
         if (stat == 0) then
             sim%rates_stale = trim(stored%numerics%integrator) /= 'verlet'
-            mismatch = geometry_mismatch(stored, cfg)
+            mismatch = geometry_mismatch(stored, given)
             if (len(mismatch) > 0) call fatal_collective(what, mismatch)
             ! the particles' densities and masses are those of the stored rest density: with
             ! another, the equation of state turned them into pressures that stopped the run
             ! at its first step, as a density outside &health density_band
-            if (abs(stored%fluid%rho0 - cfg%fluid%rho0) > 1.0e-12_wp * stored%fluid%rho0) then
+            if (abs(stored%fluid%rho0 - given%fluid%rho0) > 1.0e-12_wp * stored%fluid%rho0) then
                 ! (all the digits: the refusal is to 1e-12, and 1000.0000001 printed as 1000)
                 write(line, '(a, es24.16, a, es24.16, a)') "the checkpoint's fluid has " // &
                     '&fluid rho0 = ', stored%fluid%rho0, ' kg/m^3 but the input ', &
-                    cfg%fluid%rho0, ' kg/m^3; continue with the checkpoint''s rest density'
+                    given%fluid%rho0, ' kg/m^3; continue with the checkpoint''s rest density'
                 call fatal_collective(what, trim(line))
             end if
-            walls_changed = walls_mismatch(stored, cfg)
+            walls_changed = walls_mismatch(stored, given)
             if (len(walls_changed) > 0 .and. allocated(stored%regions)) then
                 if (size(stored%regions) > 0) call fatal_collective(what, 'the input ' // &
                     'changes ' // walls_changed // ", for which the checkpoint's wall " // &
@@ -197,9 +209,9 @@ contains
         end if
         ! a remeshed (refined or coarsened) checkpoint holds particles of another spacing:
         ! the input must say so (kernel, masses of new walls, time step follow from dx)
-        if (stored_dx > 0.0_wp .and. abs(stored_dx - cfg%domain%dx) > 1.0e-9_wp * stored_dx) then
+        if (stored_dx > 0.0_wp .and. abs(stored_dx - given%domain%dx) > 1.0e-9_wp * stored_dx) then
             write(line, '(a,es15.8,a,es15.8,a)') "the checkpoint's particles have spacing " // &
-                'dx = ', stored_dx, ' m but &domain dx = ', cfg%domain%dx, &
+                'dx = ', stored_dx, ' m but &domain dx = ', given%domain%dx, &
                 ' m; set &domain dx to the checkpoint''s spacing to continue from it'
             call fatal_collective(what, trim(line))
         end if
@@ -212,20 +224,20 @@ contains
         ! to continue) the first step would kick with the old ones (checked after the
         ! refusals: a run that stops is not told that its rates will be evaluated)
         if (.not. sim%rates_stale .and. stat == 0) then
-            if (rates_inputs_differ(stored, cfg)) then
+            if (rates_inputs_differ(stored, given)) then
                 sim%rates_stale = .true.
                 call log_info(what // ': the input differs from the checkpoint''s in what ' &
                     // 'the rates depend on; its rates are evaluated anew')
             end if
         end if
         ! (a changed force or viscosity read as an error of hundreds of percent, unexplained)
-        if (stat == 0 .and. trim(cfg%run%analytic) /= 'none') then
-            if (rates_inputs_differ(stored, cfg)) call log_info(what // ": &run analytic " // &
+        if (stat == 0 .and. trim(given%run%analytic) /= 'none') then
+            if (rates_inputs_differ(stored, given)) call log_info(what // ": &run analytic " // &
                 "describes a run made with this input from t = 0, not this one's continuation " &
                 // 'of a checkpoint made with another')
         end if
-        if (cfg%remesh%every_time > 0.0_wp) sim%next_remesh_time = &
-            next_multiple(sim%time, cfg%remesh%every_time)
+        if (given%remesh%every_time > 0.0_wp) sim%next_remesh_time = &
+            next_multiple(sim%time, given%remesh%every_time)
         sim%snapshot_index = index_text
         if (.not. same_layout) then
             call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
@@ -257,6 +269,38 @@ contains
             'from the one stored in the checkpoint; the new input is used')
         call log_setup(sim, env)
     end procedure simulation_restart
+
+    !> A run that refines or coarsens in its course (&remesh) writes its later checkpoints at
+    !> the new spacing (their attribute dx) with its input as given. Continued with that same
+    !> input (its &domain dx the stored input's), it goes on at the checkpoint's spacing, as
+    !> the run that wrote it did, and the log says so: the input's own dx was refused, and a
+    !> job chain stopped at its second link. An input with yet another dx is left as it is
+    !> (and refused by simulation_restart), as is a checkpoint without a readable spacing or
+    !> stored input (refused there, or a restart at the input's dx as before). Collective.
+    subroutine take_remeshed_spacing(env, path, what, given)
+        type(mpi_env_t), intent(in) :: env
+        character(len=*), intent(in) :: path, what
+        type(config_t), intent(inout) :: given
+        type(config_t) :: stored
+        character(len=:), allocatable :: text, errmsg
+        real(wp) :: dx_file, time
+        integer(i8) :: step, n_rows
+        integer :: dimension, stat
+        dx_file = stored_spacing(env, path)
+        ! (no spacing, or none a run writes: -1; no comparison with a NaN)
+        if (.not. dx_file > 0.0_wp) return
+        if (abs(dx_file - given%domain%dx) <= 1.0e-9_wp * dx_file) return
+        call read_snapshot_header(env, path, time, step, dimension, n_rows, text, stat, errmsg)
+        if (stat /= 0) return
+        call config_parse(stored, text, 'checkpoint input', stat, errmsg)
+        if (stat /= 0) return
+        if (abs(stored%domain%dx - given%domain%dx) > 1.0e-9_wp * stored%domain%dx) return
+        call log_info(what // ": the checkpoint's particles have spacing dx = " // &
+            trim(sci_text(dx_file)) // ' m, remeshed from the input''s ' // &
+            trim(sci_text(given%domain%dx)) // ' m in the run that wrote it: the run goes ' // &
+            'on at ' // trim(sci_text(dx_file)) // ' m')
+        given%domain%dx = dx_file
+    end subroutine take_remeshed_spacing
 
     !> text on one line: its lines, their indents trimmed, joined by '; ' (by ' ' after a
     !> colon)

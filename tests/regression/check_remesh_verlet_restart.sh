@@ -5,7 +5,8 @@
 # them) and from one after it (its stored input keeps the first dx: the rates were taken for
 # another input's and evaluated anew). Straight to step 7 against restarts from 4 and 6, on
 # 2 ranks (the remesh set the halo up with less reach than set-up and restart do: after a
-# restart, velocities differed by round-off one step later).
+# restart, velocities differed by round-off one step later). Then the run's own input, which
+# keeps the first dx, from step 4 and, as a job chain's next link, from that restart's step 6.
 # usage: check_remesh_verlet_restart.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM INPUT WORKDIR PYTHON
 #        COMPARER
 set -u
@@ -28,4 +29,20 @@ for from in 4 6; do
         from$from/verlet_remesh_checkpoint_000007.h5 --ignore rank > compare$from.log 2>&1 || \
         fail "the restart from step $from differs at step 7:" compare$from.log
 done
-echo "restarts from the remesh step and after it continue bit for bit"
+# the same input as given (dx the run started with): the restart goes on at the checkpoint's
+# spacing, as the run did (it was refused, and a job chain stopped at its second link); the
+# checkpoints it writes store that input again, so the next link goes on the same way
+sed -e "s#output_dir = 'straight'#output_dir = 'same4'#" "$input" > same4.nml
+run same4.nml --restart straight/verlet_remesh_checkpoint_000004.h5 > same4.log 2>&1 || \
+    fail "the restart with the run's own input from step 4 failed:" same4.log
+grep -q "the run goes on at" same4.log || \
+    fail "the restart did not say that it takes the checkpoint's spacing:" same4.log
+sed -e "s#output_dir = 'straight'#output_dir = 'same6'#" "$input" > same6.nml
+run same6.nml --restart same4/verlet_remesh_checkpoint_000006.h5 > same6.log 2>&1 || \
+    fail "the next link (from the restart's own checkpoint at step 6) failed:" same6.log
+for link in same4 same6; do
+    "$python" "$comparer" straight/verlet_remesh_checkpoint_000007.h5 \
+        $link/verlet_remesh_checkpoint_000007.h5 --ignore rank > compare_$link.log 2>&1 || \
+        fail "the restart $link with the run's own input differs at step 7:" compare_$link.log
+done
+echo "restarts from the remesh step and after it continue bit for bit, with the run's own input too"
