@@ -29,7 +29,7 @@ module sph_transition_driver
     use sph_kinds, only: wp, i8
     use sph_mpi_env, only: mpi_env_t, global_sum, global_max, exclusive_scan_i8
     use sph_remesh_images, only: with_periodic_images, with_mirrors
-    use sph_refine, only: MIRROR_DEPTH
+    use sph_refine, only: MIRROR_DEPTH, MIN_GAP
     use sph_errors, only: fatal_collective
     use sph_config, only: config_t
     use sph_particles, only: particles_t, particles_init, particles_free, particles_reserve, &
@@ -42,7 +42,7 @@ module sph_transition_driver
     use sph_zones, only: zones_t, MAX_LEVEL
     use sph_initial, only: create_lattice_particles, site_filter_t
     use sph_global_ids, only: global_max_id, assign_global_ids, id_order
-    use sph_cell_list, only: neighbour_list_t, build_cross_list
+    use sph_cell_list, only: neighbour_list_t, build_cross_list, build_neighbour_list
     use sph_kernel, only: kernel_t
     use sph_transition, only: fine_virtual_positions, coarse_virtual_positions, &
         fine_virtual_split, coarse_virtual_parity, &
