@@ -8,6 +8,9 @@ module sph_command_line
         logical :: show_help = .false.
         logical :: show_version = .false.
         logical :: check_only = .false.     !< --check: set up, report, write nothing
+        !> --continue: from the newest complete checkpoint of the input's case in its
+        !> output_dir when that holds one, else a fresh start (a job chain's links)
+        logical :: continue_run = .false.
         character(len=:), allocatable :: input_file
         character(len=:), allocatable :: restart_from   !< checkpoint file or directory, '' = none
         !> --remesh MODE IN OUT: remesh a snapshot or checkpoint offline ('' = not asked)
@@ -46,6 +49,8 @@ contains
                 opts%show_version = .true.
             case ('--check')
                 opts%check_only = .true.
+            case ('--continue')
+                opts%continue_run = .true.
             case ('--restart')
                 call option_value(i, n, arg, 'a checkpoint file or a directory of ' // &
                     'checkpoints', opts%restart_from, stat, errmsg)
@@ -118,6 +123,14 @@ contains
             errmsg = '--check sets up a fresh run and takes no --restart'
             return
         end if
+        if (opts%continue_run .and. (opts%check_only .or. len(opts%restart_from) > 0 .or. &
+            len(opts%remesh_mode) > 0)) then
+            stat = 1
+            errmsg = '--continue takes neither --check, --restart nor --remesh (it restarts ' // &
+                "from the newest checkpoint of the input's case in its output_dir, or starts " // &
+                'the run when there is none)'
+            return
+        end if
         if (len(opts%remesh_mode) > 0 .and. len(opts%input_file) > 0) then
             stat = 1
             errmsg = '--remesh takes no input file (it uses the input stored in ' // &
@@ -173,7 +186,8 @@ contains
         character(len=:), allocatable :: text
         character(len=*), parameter :: nl = new_line('a')
         text = &
-            'usage: mpirun -np N sphremesh INPUT.nml [--restart CHECKPOINT.h5|DIR]' // nl // &
+            'usage: mpirun -np N sphremesh INPUT.nml [--restart CHECKPOINT.h5|DIR | --continue]' &
+            // nl // &
             '       mpirun -np N sphremesh --check INPUT.nml' // nl // &
             '       mpirun -np N sphremesh --remesh refine|coarsen|same IN.h5 OUT.h5' // nl // &
             '       mpirun -np N sphremesh --remesh refine IN.h5 OUT.h5 --regions INPUT.nml' // &
@@ -189,6 +203,10 @@ contains
             nl // &
             '  --restart PATH     continue from a checkpoint file, or from the newest' // nl // &
             '                     complete checkpoint in directory PATH' // nl // &
+            '  --continue         continue from the newest complete checkpoint of the' // nl // &
+            "                     input's case in its &output output_dir, or start the run" // &
+            nl // &
+            '                     when that holds none (for job chains)' // nl // &
             '  --check            check the input and set the run up: print the particle' // &
             nl // &
             '                     counts, memory, time step and steps, then stop (no output)' // &

@@ -8,6 +8,7 @@ program sphremesh_main
     use sph_input, only: load_config
     use sph_version, only: code_version, build_options
     use sph_simulation, only: simulation_run
+    use sph_checkpoint, only: has_checkpoint
     use sph_stepper, only: simulation_t, simulation_setup, simulation_check_report, &
         simulation_remesh_file, simulation_refine_regions_file
     use sph_signals, only: signals_install
@@ -67,6 +68,16 @@ program sphremesh_main
         call simulation_check_report(sim, env)
         call log_info('check: the input is valid')
         call finish(0)
+    end if
+    if (opts%continue_run) then
+        ! (a checkpoint of the case, complete or not: none complete is the restart's error,
+        ! not a silent start from t = 0)
+        if (has_checkpoint(env, trim(cfg%output%output_dir), trim(cfg%run%case_name))) then
+            opts%restart_from = trim(cfg%output%output_dir)
+        else
+            call log_info("continue: no checkpoint of case '" // trim(cfg%run%case_name) // &
+                "' in '" // trim(cfg%output%output_dir) // "': the run starts")
+        end if
     end if
     call simulation_run(env, cfg, opts%restart_from, status)
 

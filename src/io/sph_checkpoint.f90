@@ -20,6 +20,7 @@ module sph_checkpoint
     implicit none
     private
     public :: write_checkpoint, read_checkpoint, checkpoint_filename, find_latest_checkpoint
+    public :: has_checkpoint
     public :: checkpoint_format_version, stored_spacing
 
     integer(i4), parameter :: checkpoint_format_version = 1
@@ -265,42 +266,22 @@ contains
         character(len=*), intent(in) :: directory, case_name
         character(len=:), allocatable, intent(out) :: path, skipped, errmsg
         integer, intent(out) :: stat
-        character(len=:), allocatable :: listing, prefix, name, candidate, text, reason
+        character(len=:), allocatable :: prefix, candidate, text, reason
         integer(i8), allocatable :: steps(:)
         character(len=512), allocatable :: names(:)
-        integer :: k, start, n, best, digits_stat, dim
+        integer :: best, dim
         integer(i8) :: step, rows
         real(wp) :: time
 
         path = ''
         skipped = ''
         errmsg = ''
-        listing = ''
-        if (env%rank == 0) then
-            call list_directory(directory, listing, stat)
-            if (stat /= 0) listing = achar(0)
-        end if
-        call broadcast_text(env, listing)
-        if (listing == achar(0)) then
-            stat = 1
+        call checkpoint_names(env, directory, case_name, names, steps, stat)
+        if (stat /= 0) then
             errmsg = "cannot read the directory '" // directory // "'"
             return
         end if
         prefix = trim(case_name) // '_checkpoint_'
-        allocate(names(0), steps(0))
-        start = 1
-        do k = 1, len(listing)
-            if (listing(k:k) /= new_line('a')) cycle
-            name = listing(start:k - 1)
-            start = k + 1
-            n = len(name)
-            if (n <= len(prefix) + 3) cycle
-            if (name(1:len(prefix)) /= prefix .or. name(n - 2:n) /= '.h5') cycle
-            read(name(len(prefix) + 1:n - 3), *, iostat=digits_stat) step
-            if (digits_stat /= 0) cycle
-            names = [character(len=512) :: names, name]
-            steps = [steps, step]
-        end do
         stat = 1
         do while (size(steps) > 0)
             best = maxloc(steps, dim=1)
@@ -320,4 +301,57 @@ contains
         errmsg = "no complete checkpoint '" // prefix // "*.h5' in '" // directory // "'"
         if (len(skipped) > 0) errmsg = errmsg // ' (skipped:' // skipped // ')'
     end subroutine find_latest_checkpoint
+
+    !> Whether `directory` holds a checkpoint of `case_name` (a file named as one, complete or
+    !> not; collective): a missing or unreadable directory holds none.
+    logical function has_checkpoint(env, directory, case_name) result(found)
+        type(mpi_env_t), intent(in) :: env
+        character(len=*), intent(in) :: directory, case_name
+        character(len=512), allocatable :: names(:)
+        integer(i8), allocatable :: steps(:)
+        integer :: stat
+        call checkpoint_names(env, directory, case_name, names, steps, stat)
+        found = .false.
+        if (stat == 0) found = size(names) > 0
+    end function has_checkpoint
+
+    !> The files of `directory` named as checkpoints of `case_name` and their steps
+    !> (<case>_checkpoint_<step>.h5), in the listing's order; stat /= 0 when the directory
+    !> cannot be read (collective: rank 0 lists it).
+    subroutine checkpoint_names(env, directory, case_name, names, steps, stat)
+        type(mpi_env_t), intent(in) :: env
+        character(len=*), intent(in) :: directory, case_name
+        character(len=512), allocatable, intent(out) :: names(:)
+        integer(i8), allocatable, intent(out) :: steps(:)
+        integer, intent(out) :: stat
+        character(len=:), allocatable :: listing, prefix, name
+        integer :: k, start, n, digits_stat
+        integer(i8) :: step
+        allocate(names(0), steps(0))
+        listing = ''
+        if (env%rank == 0) then
+            call list_directory(directory, listing, stat)
+            if (stat /= 0) listing = achar(0)
+        end if
+        call broadcast_text(env, listing)
+        stat = 0
+        if (listing == achar(0)) then
+            stat = 1
+            return
+        end if
+        prefix = trim(case_name) // '_checkpoint_'
+        start = 1
+        do k = 1, len(listing)
+            if (listing(k:k) /= new_line('a')) cycle
+            name = listing(start:k - 1)
+            start = k + 1
+            n = len(name)
+            if (n <= len(prefix) + 3) cycle
+            if (name(1:len(prefix)) /= prefix .or. name(n - 2:n) /= '.h5') cycle
+            read(name(len(prefix) + 1:n - 3), *, iostat=digits_stat) step
+            if (digits_stat /= 0) cycle
+            names = [character(len=512) :: names, name]
+            steps = [steps, step]
+        end do
+    end subroutine checkpoint_names
 end module sph_checkpoint

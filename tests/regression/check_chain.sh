@@ -2,7 +2,9 @@
 # The chaining job script under a stand-in scheduler: a loop that starts
 # scripts/jobs/sphremesh-chain, sends its ranks SIGTERM a moment after each start, and starts
 # it again while it asks for another job (status 75). The chained run must end where one
-# uninterrupted run ends, bitwise (same rank count).
+# uninterrupted run ends, bitwise (same rank count). Then, in the same folder: a second case
+# starts afresh, a failing link after a stopped one fails, and a stop whose launcher fails
+# is still a stop however many lines follow it.
 # usage: check_chain.sh CHAIN LAUNCHER PROGRAM INPUT WORKDIR PYTHON COMPARER
 set -u
 chain=$1 launcher=$2 program=$3 input=$4 work=$5 python=$6 comparer=$7
@@ -46,3 +48,33 @@ final=$(cd "$work/straight/output" && ls *_0*.h5 | grep -v checkpoint | sort | t
 "$python" "$comparer" "$work/straight/output/$final" "output/$final" || {
     echo "the chained run differs from the uninterrupted one"; exit 1; }
 echo "$stops interruptions, $((stops + 1)) jobs; $final identical to the uninterrupted run"
+
+# A second case in the same folder: its first link starts it (another case's checkpoints
+# were taken for its own, and the restart stopped with status 1); 20 steps are enough.
+sed -e "s/case_name = 'poiseuille'/case_name = 'second'/" \
+    -e "s/t_end = 0.1/t_end = 0.1\n    max_steps = 20/" "$input" > second.nml
+"$chain" -n 2 -i second.nml -o output -l "$launcher" -x "$program"
+status=$?
+[ $status -eq 0 ] || { echo "the second case's first link failed ($status):"; tail -n 20 output/chain.log; exit 1; }
+grep -q "continue: no checkpoint of case 'second'" output/chain.log || {
+    echo "the second case did not start afresh:"; tail -n 20 output/chain.log; exit 1; }
+# A link that fails right after one that stopped early: its status, not the last link's words
+# (they were within the log's last lines, and a failing job was resubmitted)
+echo "stopped early by signal 15 (SIGTERM) at the checkpoint above (a link before)" >> output/chain.log
+"$chain" -n 2 -i no_such_input.nml -o output -l "$launcher" -x "$program"
+status=$?
+[ $status -ne 0 ] && [ $status -ne 75 ] || {
+    echo "a failing link after a stopped one gave status $status (not a failure)"; exit 1; }
+# A launcher that fails when the signal reached it too, after a run that printed many lines
+# after its stop (a run with many bodies prints a force line each): 75 all the same
+cat > launcher_after_stop <<'SH'
+#!/usr/bin/env bash
+echo "stopped early by signal 15 (SIGTERM) at the checkpoint above"
+for k in $(seq 1 64); do echo "force on body $k: ..."; done
+exit 143
+SH
+chmod +x launcher_after_stop
+"$chain" -n 2 -i second.nml -o output -l "$PWD/launcher_after_stop" -x "$program"
+status=$?
+[ $status -eq 75 ] || { echo "a stopped run with many lines after its stop gave $status, not 75"; exit 1; }
+echo "a second case in the folder starts afresh; a failed link fails; a stop is a stop"
