@@ -141,7 +141,7 @@ contains
             .and. len(opts%remesh_mode) == 0) then
             stat = 1
             errmsg = 'no input file given (usage: sphremesh INPUT.nml ' // &
-                '[--restart CHECKPOINT]; see sphremesh --help)'
+                '[--restart CHECKPOINT | --continue]; see sphremesh --help)'
         end if
     end subroutine parse_command_line
 
@@ -206,7 +206,9 @@ contains
             '  --continue         continue from the newest complete checkpoint of the' // nl // &
             "                     input's case in its &output output_dir, or start the run" // &
             nl // &
-            '                     when that holds none (for job chains)' // nl // &
+            '                     when that holds no checkpoint file of the case (only' // &
+            nl // &
+            '                     damaged ones: an error); for job chains' // nl // &
             '  --check            check the input and set the run up: print the particle' // &
             nl // &
             '                     counts, memory, time step and steps, then stop (no output)' // &

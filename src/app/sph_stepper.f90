@@ -267,6 +267,16 @@ module sph_stepper
             type(config_t), intent(in) :: cfg
             character(len=*), intent(in) :: regions_path, in_path, out_path
         end subroutine simulation_refine_regions_file
+
+        !> Why a run of cfg cannot go on at spacing dx_new ('' when it can): its lattice must
+        !> fill the box (the input check's rule for dx, sph_domain_input) and a periodic side
+        !> must hold twice the kernel's support there (setup_common's rule). A remesh that
+        !> would break them is skipped in a run and written only for study offline.
+        module function spacing_problem_at(cfg, dx_new) result(problem)
+            type(config_t), intent(in) :: cfg
+            real(wp), intent(in) :: dx_new
+            character(len=:), allocatable :: problem
+        end function spacing_problem_at
     end interface
 
     ! Reports and output files: forces, snapshots, checkpoints, the check report, the levels'

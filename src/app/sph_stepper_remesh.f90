@@ -254,21 +254,23 @@ contains
         call build_mirrors(sim%phys, sim%solids, sim%p)
     end subroutine consistent_masses
 
-    !> Why a run cannot go on at the spacing a remesh of `mode` makes ('' when it can): its
-    !> lattice must fill the box (the input check's rule for dx, sph_domain_input) and a
-    !> periodic side must hold twice the new kernel support (setup_common's rule).
+    !> Why a run cannot go on at the spacing a remesh of `mode` makes ('' when it can):
+    !> spacing_problem_at that spacing.
     function spacing_problem(cfg, mode) result(problem)
         type(config_t), intent(in) :: cfg
         integer, intent(in) :: mode
         character(len=:), allocatable :: problem
+        problem = spacing_problem_at(cfg, cfg%domain%dx * remesh_spacing_factor(mode))
+    end function spacing_problem
+
+    module procedure spacing_problem_at
         character(len=200) :: text
         character(len=:), allocatable :: errmsg
         type(config_t) :: after
         type(physics_t) :: phys
-        real(wp) :: dx_new, side
+        real(wp) :: side
         integer :: axis, stat
         problem = ''
-        dx_new = cfg%domain%dx * remesh_spacing_factor(mode)
         axis = misfit_axis(cfg%domain, dx_new)
         if (axis /= 0) then
             side = cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis)
@@ -295,7 +297,7 @@ contains
             problem = trim(text)
             return
         end do
-    end function spacing_problem
+    end procedure spacing_problem_at
 
     !> Why remeshing the fluid of sim (mode) cannot run on these ranks ('' if it can;
     !> collective): the new set must fit the ranks' neighbour lists and the nodes' memory

@@ -8,7 +8,6 @@ submodule (sph_stepper) sph_stepper_setup
     use sph_text_lines, only: next_line
     use sph_snapshot, only: read_snapshot_header
     use sph_checkpoint, only: stored_spacing
-    use sph_config, only: config_to_text
     implicit none
 
 contains
@@ -125,12 +124,11 @@ contains
         else
             path = from
         end if
+        ! (given keeps the input's resolved text, which setup_common stores and the run's
+        ! files carry, with the dx it gives: the next restart takes the spacing again)
         given = cfg
         call take_remeshed_spacing(env, path, what, given)
         call setup_common(sim, env, given)
-        ! the input as given goes into the run's files, as the run that wrote the checkpoint
-        ! stored it (its spacing beside it): the next restart takes it the same way
-        sim%input_text = config_to_text(cfg)
         call read_checkpoint(env, path, sim%p, sim%domain, sim%time, sim%step, stored_input, &
             index_text, same_layout, stat, errmsg, stored_dx, balance)
         if (stat /= 0) call fatal_collective(what, errmsg)
@@ -168,7 +166,8 @@ contains
         ! were laid for its geometry
         call config_parse(stored, stored_input, 'checkpoint input', stat, errmsg)
         ! a remeshed checkpoint keeps its input as given, with the spacing the run or the
-        ! offline remesh changed to beside it (a restart must give that one: refused below)
+        ! offline remesh changed to beside it (a restart gives that one, or the stored
+        ! input's, taken at it above; refused below otherwise)
         if (stat == 0 .and. stored_dx > 0.0_wp) stored%domain%dx = stored_dx
         sim%rates_stale = .true.
         ! a stored input this version refuses (written before a rule was added): the given
@@ -208,7 +207,8 @@ contains
             end if
         end if
         ! a remeshed (refined or coarsened) checkpoint holds particles of another spacing:
-        ! the input must say so (kernel, masses of new walls, time step follow from dx)
+        ! the input must say so (kernel, masses of new walls, time step follow from dx),
+        ! unless take_remeshed_spacing took it
         if (stored_dx > 0.0_wp .and. abs(stored_dx - given%domain%dx) > 1.0e-9_wp * stored_dx) then
             write(line, '(a,es15.8,a,es15.8,a)') "the checkpoint's particles have spacing " // &
                 'dx = ', stored_dx, ' m but &domain dx = ', given%domain%dx, &
@@ -274,9 +274,13 @@ contains
     !> the new spacing (their attribute dx) with its input as given. Continued with that same
     !> input (its &domain dx the stored input's), it goes on at the checkpoint's spacing, as
     !> the run that wrote it did, and the log says so: the input's own dx was refused, and a
-    !> job chain stopped at its second link. An input with yet another dx is left as it is
-    !> (and refused by simulation_restart), as is a checkpoint without a readable spacing or
-    !> stored input (refused there, or a restart at the input's dx as before). Collective.
+    !> job chain stopped at its second link. Left as it is (and so refused by
+    !> simulation_restart, which names the checkpoint's spacing): an input with yet another
+    !> dx; one with &region groups (their zones' width and faces are checked at the input's
+    !> spacing); a spacing at which no run of the input can go on (spacing_problem_at: an
+    !> offline remesh writes such a file for study only, and a run skips such a remesh).
+    !> A checkpoint without a readable spacing or stored input is left to the restart's own
+    !> checks. Collective.
     subroutine take_remeshed_spacing(env, path, what, given)
         type(mpi_env_t), intent(in) :: env
         character(len=*), intent(in) :: path, what
@@ -295,10 +299,14 @@ contains
         call config_parse(stored, text, 'checkpoint input', stat, errmsg)
         if (stat /= 0) return
         if (abs(stored%domain%dx - given%domain%dx) > 1.0e-9_wp * stored%domain%dx) return
+        if (allocated(given%regions)) then
+            if (size(given%regions) > 0) return
+        end if
+        if (len(spacing_problem_at(given, dx_file)) > 0) return
         call log_info(what // ": the checkpoint's particles have spacing dx = " // &
             trim(sci_text(dx_file)) // ' m, remeshed from the input''s ' // &
-            trim(sci_text(given%domain%dx)) // ' m in the run that wrote it: the run goes ' // &
-            'on at ' // trim(sci_text(dx_file)) // ' m')
+            trim(sci_text(given%domain%dx)) // ' m: the input is taken at ' // &
+            trim(sci_text(dx_file)) // ' m')
         given%domain%dx = dx_file
     end subroutine take_remeshed_spacing
 

@@ -1,4 +1,4 @@
-!> sphremesh: mpirun -np N sphremesh INPUT.nml [--restart CHECKPOINT]
+!> sphremesh: mpirun -np N sphremesh INPUT.nml [--restart CHECKPOINT | --continue]
 program sphremesh_main
     use sph_mpi_env, only: mpi_env_t, mpi_env_init_world, mpi_env_free
     use sph_errors, only: fatal_collective, check_mpi, exit_process
@@ -69,22 +69,38 @@ program sphremesh_main
         call log_info('check: the input is valid')
         call finish(0)
     end if
-    if (opts%continue_run) then
-        ! (a checkpoint of the case, complete or not: none complete is the restart's error,
-        ! not a silent start from t = 0)
-        if (has_checkpoint(env, trim(cfg%output%output_dir), trim(cfg%run%case_name))) then
-            opts%restart_from = trim(cfg%output%output_dir)
-        else
-            call log_info("continue: no checkpoint of case '" // trim(cfg%run%case_name) // &
-                "' in '" // trim(cfg%output%output_dir) // "': the run starts")
-        end if
-    end if
+    if (opts%continue_run) call continue_from(cfg%output%output_dir, cfg%run%case_name)
     call simulation_run(env, cfg, opts%restart_from, status)
 
     call log_warning_summary()
     call finish(status)
 
 contains
+
+    !> --continue: from the newest complete checkpoint of the case in its output folder when
+    !> that holds a checkpoint file of the case (complete or not: none complete is the
+    !> restart's error, not a silent start from t = 0), else a fresh start. A folder that
+    !> exists but cannot be listed stops the run: a fresh start there would write over the
+    !> earlier run's files.
+    subroutine continue_from(folder, case_name)
+        character(len=*), intent(in) :: folder, case_name
+        logical :: exists, found
+        integer :: list_stat
+        found = .false.
+        inquire(file=trim(folder) // '/.', exist=exists)
+        if (exists) then
+            call has_checkpoint(env, trim(folder), trim(case_name), found, list_stat)
+            if (list_stat /= 0) call fatal_collective('continue', "cannot list the " // &
+                "&output output_dir '" // trim(folder) // "' for the checkpoints of case '" // &
+                trim(case_name) // "'")
+        end if
+        if (found) then
+            opts%restart_from = trim(folder)
+        else
+            call log_info("continue: no checkpoint of case '" // trim(case_name) // "' in '" // &
+                trim(folder) // "': the run starts")
+        end if
+    end subroutine continue_from
 
     !> Leave with a status: 0 done, 75 stopped early with a checkpoint (resubmit).
     subroutine finish(exit_status)

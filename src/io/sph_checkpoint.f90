@@ -6,7 +6,7 @@
 !> rank count the rows are shared out evenly and the caller rebuilds the decomposition.
 module sph_checkpoint
     use sph_kinds, only: wp, i4, i8
-    use sph_mpi_env, only: mpi_env_t, broadcast_text, agreed_status
+    use sph_mpi_env, only: mpi_env_t, broadcast_text, agreed_status, global_max
     use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL, FIELD_CHECKPOINT
     use sph_domain, only: domain_t, domain_set_tree, domain_tree_valid
     use sph_logger, only: log_warn
@@ -241,9 +241,13 @@ contains
         integer :: stat
         dx = 0.0_wp
         call h5_open_read(env, path, file, stat)
-        if (stat /= 0) return
-        dx = file_spacing(file)
-        call h5_close(file)
+        if (stat == 0) then
+            dx = file_spacing(file)
+            call h5_close(file)
+        end if
+        ! one answer on every rank (the smallest: a rank that could not read it says so),
+        ! since the callers branch into collective reads on it
+        dx = -global_max(env, -dx)
     end function stored_spacing
 
     !> The attribute 'dx' of an open file: 0 when it has none, -1 when it is no spacing (not
@@ -303,17 +307,19 @@ contains
     end subroutine find_latest_checkpoint
 
     !> Whether `directory` holds a checkpoint of `case_name` (a file named as one, complete or
-    !> not; collective): a missing or unreadable directory holds none.
-    logical function has_checkpoint(env, directory, case_name) result(found)
+    !> not; collective); stat /= 0 when it cannot be listed (the caller tells a missing
+    !> directory, which holds none, from an unreadable one).
+    subroutine has_checkpoint(env, directory, case_name, found, stat)
         type(mpi_env_t), intent(in) :: env
         character(len=*), intent(in) :: directory, case_name
+        logical, intent(out) :: found
+        integer, intent(out) :: stat
         character(len=512), allocatable :: names(:)
         integer(i8), allocatable :: steps(:)
-        integer :: stat
         call checkpoint_names(env, directory, case_name, names, steps, stat)
         found = .false.
         if (stat == 0) found = size(names) > 0
-    end function has_checkpoint
+    end subroutine has_checkpoint
 
     !> The files of `directory` named as checkpoints of `case_name` and their steps
     !> (<case>_checkpoint_<step>.h5), in the listing's order; stat /= 0 when the directory
@@ -348,6 +354,9 @@ contains
             n = len(name)
             if (n <= len(prefix) + 3) cycle
             if (name(1:len(prefix)) /= prefix .or. name(n - 2:n) /= '.h5') cycle
+            ! digits only, as the files of a case are told apart elsewhere
+            ! (sph_earlier_output): a list-directed read took '12 old', '+5' or '2*5'
+            if (verify(name(len(prefix) + 1:n - 3), '0123456789') /= 0) cycle
             read(name(len(prefix) + 1:n - 3), *, iostat=digits_stat) step
             if (digits_stat /= 0) cycle
             names = [character(len=512) :: names, name]

@@ -8,15 +8,16 @@
 # usage: check_chain.sh CHAIN LAUNCHER PROGRAM INPUT WORKDIR PYTHON COMPARER
 set -u
 chain=$1 launcher=$2 program=$3 input=$4 work=$5 python=$6 comparer=$7
+log="output/chain-$(basename "$input" .nml).log"   # the chain's log of this input
 rm -rf "$work" && mkdir -p "$work/straight" "$work/chained" || exit 1
 link() { "$chain" -n 2 -i "$input" -o output -l "$launcher" -x "$program"; }
 progress_lines() {
     local n
-    n=$(grep -cE '^ +[0-9]+ +[0-9.]+E[-+][0-9]+ ' output/chain.log 2> /dev/null)
+    n=$(grep -cE '^ +[0-9]+ +[0-9.]+E[-+][0-9]+ ' "$log" 2> /dev/null)
     echo "${n:-0}"
 }
 
-cd "$work/straight" && link || { echo "the uninterrupted run failed:"; cat output/chain.log; exit 1; }
+cd "$work/straight" && link || { echo "the uninterrupted run failed:"; cat "$log"; exit 1; }
 
 cd "$work/chained"
 stops=0
@@ -38,7 +39,7 @@ for job in $(seq 1 30); do
     status=$?
     if [ $status -eq 0 ]; then break; fi
     if [ $status -ne 75 ]; then
-        echo "job $job failed with status $status:"; tail -n 30 output/chain.log; exit 1
+        echo "job $job failed with status $status:"; tail -n 30 "$log"; exit 1
     fi
     stops=$((stops + 1))
 done
@@ -55,12 +56,16 @@ sed -e "s/case_name = 'poiseuille'/case_name = 'second'/" \
     -e "s/t_end = 0.1/t_end = 0.1\n    max_steps = 20/" "$input" > second.nml
 "$chain" -n 2 -i second.nml -o output -l "$launcher" -x "$program"
 status=$?
-[ $status -eq 0 ] || { echo "the second case's first link failed ($status):"; tail -n 20 output/chain.log; exit 1; }
-grep -q "continue: no checkpoint of case 'second'" output/chain.log || {
-    echo "the second case did not start afresh:"; tail -n 20 output/chain.log; exit 1; }
+[ $status -eq 0 ] || {
+    echo "the second case's first link failed ($status):"
+    tail -n 20 output/chain-second.log; exit 1; }
+grep -q "continue: no checkpoint of case 'second'" output/chain-second.log || {
+    echo "the second case did not start afresh:"; tail -n 20 output/chain-second.log
+    exit 1; }
 # A link that fails right after one that stopped early: its status, not the last link's words
 # (they were within the log's last lines, and a failing job was resubmitted)
-echo "stopped early by signal 15 (SIGTERM) at the checkpoint above (a link before)" >> output/chain.log
+echo "stopped early by signal 15 (SIGTERM) at the checkpoint above (a link before)" \
+    >> output/chain-no_such_input.log
 "$chain" -n 2 -i no_such_input.nml -o output -l "$launcher" -x "$program"
 status=$?
 [ $status -ne 0 ] && [ $status -ne 75 ] || {
@@ -76,5 +81,22 @@ SH
 chmod +x launcher_after_stop
 "$chain" -n 2 -i second.nml -o output -l "$PWD/launcher_after_stop" -x "$program"
 status=$?
-[ $status -eq 75 ] || { echo "a stopped run with many lines after its stop gave $status, not 75"; exit 1; }
-echo "a second case in the folder starts afresh; a failed link fails; a stop is a stop"
+[ $status -eq 75 ] || {
+    echo "a stopped run with many lines after its stop gave $status, not 75"; exit 1; }
+# A case with only a damaged checkpoint in the folder stops (no silent start from t = 0); one
+# with only a checkpoint left unfinished (.tmp) starts
+sed -e "s/case_name = 'second'/case_name = 'third'/" second.nml > third.nml
+echo "not a checkpoint" > output/third_checkpoint_000005.h5
+"$chain" -n 2 -i third.nml -o output -l "$launcher" -x "$program"
+status=$?
+[ $status -ne 0 ] && [ $status -ne 75 ] && \
+    grep -q "no complete checkpoint" output/chain-third.log || {
+    echo "a case with only a damaged checkpoint gave status $status:"
+    tail -n 20 output/chain-third.log; exit 1; }
+sed -e "s/case_name = 'second'/case_name = 'fourth'/" second.nml > fourth.nml
+echo "unfinished" > output/fourth_checkpoint_000005.h5.tmp
+"$chain" -n 2 -i fourth.nml -o output -l "$launcher" -x "$program" || {
+    echo "a case with only an unfinished checkpoint did not start:"
+    tail -n 20 output/chain-fourth.log; exit 1; }
+echo "a second case in the folder starts afresh; a failed link fails; a stop is a stop;" \
+    "a damaged checkpoint stops the chain"

@@ -35,11 +35,19 @@ done
 sed -e "s#output_dir = 'straight'#output_dir = 'same4'#" "$input" > same4.nml
 run same4.nml --restart straight/verlet_remesh_checkpoint_000004.h5 > same4.log 2>&1 || \
     fail "the restart with the run's own input from step 4 failed:" same4.log
-grep -q "the run goes on at" same4.log || \
+grep -q "the input is taken at" same4.log || \
     fail "the restart did not say that it takes the checkpoint's spacing:" same4.log
 sed -e "s#output_dir = 'straight'#output_dir = 'same6'#" "$input" > same6.nml
 run same6.nml --restart same4/verlet_remesh_checkpoint_000006.h5 > same6.log 2>&1 || \
     fail "the next link (from the restart's own checkpoint at step 6) failed:" same6.log
+# a third dx (neither the checkpoint's nor its stored input's) is still refused
+sed -e "s#output_dir = 'straight'#output_dir = 'third'#" -e "s/dx = 1.0e-3/dx = 2.5e-4/" \
+    "$input" > third.nml
+if run third.nml --restart straight/verlet_remesh_checkpoint_000006.h5 > third.log 2>&1; then
+    fail "a restart with a third dx was not refused:" third.log
+fi
+grep -q "set &domain dx to the checkpoint's spacing" third.log || \
+    fail "the restart with a third dx was refused for another reason:" third.log
 for link in same4 same6; do
     "$python" "$comparer" straight/verlet_remesh_checkpoint_000007.h5 \
         $link/verlet_remesh_checkpoint_000007.h5 --ignore rank > compare_$link.log 2>&1 || \
