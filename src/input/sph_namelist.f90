@@ -128,7 +128,7 @@ contains
                     stat = stat + 1
                     errmsg = errmsg // nl // '  ' // self%source // ':' // &
                         itoa(self%groups(g)%line) // ': unknown namelist group &' // name // &
-                        suggestion(name, allowed) // '. Allowed groups: ' // &
+                        suggestion(name, allowed) // ' Allowed groups: ' // &
                         join(allowed, ', &', '&')
                     cycle
                 end if
@@ -239,7 +239,6 @@ contains
         do i = 1, size(self%items)
             if (self%items(i)%used) cycle
             hint = suggestion(self%items(i)%key, names)
-            if (len(hint) == 0) hint = '.'
             call self%error(self%items(i)%key, 'unknown key (line ' // &
                 itoa(self%items(i)%line) // ')' // hint // &
                 ' Allowed keys in &' // self%name // ': ' // join(names, ', ', ''))
@@ -568,6 +567,13 @@ contains
                 associate (v => self%items(i)%values(k))
                     if (v%null) cycle
                     shown = element_label(key, order(k), [size(var)])
+                    ! the standard's namelist input delimits strings: unquoted, a '!' in
+                    ! the value started a comment and a '/' ended the group
+                    if (.not. v%quoted) then
+                        call self%error(shown, v%text // ' is not a quoted string (write ' // &
+                            quote(v%text) // ')' // line_text(self%items(i)))
+                        cycle
+                    end if
                     if (len(v%text) > len(var)) then
                         call self%error(shown, "'" // v%text // "' is longer than " // &
                             itoa(len(var)) // ' characters' // line_text(self%items(i)))
@@ -763,8 +769,11 @@ contains
                     cycle
                 end if
                 ! no key means anything beyond these magnitudes (SI units), and products,
-                ! squares and ratios of such values (h^2 / nu, t_end / dt) overflow
-                if (x /= 0.0_wp .and. (abs(x) < MIN_MAGNITUDE .or. abs(x) > MAX_MAGNITUDE)) then
+                ! squares and ratios of such values (h^2 / nu, t_end / dt) overflow; a
+                ! value that underflows to 0 (1e-400: 0 means 'automatic' for some keys)
+                ! is below them too
+                if ((x /= 0.0_wp .and. (abs(x) < MIN_MAGNITUDE .or. abs(x) > MAX_MAGNITUDE)) &
+                    .or. (x == 0.0_wp .and. nonzero_mantissa(v%text))) then
                     call self%error(shown, "'" // v%text // "' is outside the magnitudes " // &
                         'sphremesh computes with (0, or 1e-30 to 1e30 in SI units)' // at_line)
                     cycle
@@ -773,6 +782,35 @@ contains
             end associate
         end do
     end subroutine convert_reals
+
+    !> Whether a number's digits before its exponent are not all zero ('1e-400', not
+    !> '0.0e5').
+    logical function nonzero_mantissa(text)
+        character(len=*), intent(in) :: text
+        integer :: e
+        e = scan(text, 'eEdDqQ')
+        if (e == 0) e = len(text) + 1
+        nonzero_mantissa = scan(text(1:e - 1), '123456789') > 0
+    end function nonzero_mantissa
+
+    !> An integer subscript bound: digits with an optional sign and blanks around them;
+    !> ios /= 0 for anything else.
+    subroutine read_index(text, value, ios)
+        character(len=*), intent(in) :: text
+        integer, intent(out) :: value, ios
+        character(len=:), allocatable :: t
+        integer :: first
+        value = 0
+        ios = 1
+        t = trim(adjustl(text))
+        first = 1
+        if (len(t) > 0) then
+            if (t(1:1) == '+' .or. t(1:1) == '-') first = 2
+        end if
+        if (len(t) < first) return
+        if (verify(t(first:), '0123456789') /= 0) return
+        read(t, *, iostat=ios) value
+    end subroutine read_index
 
     !> Element indices (column-major, 1-based) that the values of an assignment fill: all of
     !> the array without a subscript; from one element on for `key(i,j)`; the section for
@@ -804,17 +842,20 @@ contains
                     'is not supported; give a range lo:hi or the elements one by one')
                 return
             end if
+            ! (each bound an integer and nothing else: a list-directed read took '2 1', '2/3',
+            ! '1*2' or '2;9' as 2, and left the bound unset for '/' or '3*')
             if (c == 0) then
-                read(parts(d), *, iostat=ios) lo(d)
+                call read_index(parts(d), lo(d), ios)
                 hi(d) = lo(d)
             else
                 section = .true.
                 lo(d) = 1
                 hi(d) = shp(d)
                 ios = 0
-                if (len_trim(parts(d)(1:c - 1)) > 0) read(parts(d)(1:c - 1), *, iostat=ios) lo(d)
+                if (len_trim(parts(d)(1:c - 1)) > 0) &
+                    call read_index(parts(d)(1:c - 1), lo(d), ios)
                 if (ios == 0 .and. len_trim(parts(d)(c + 1:)) > 0) &
-                    read(parts(d)(c + 1:), *, iostat=ios) hi(d)
+                    call read_index(parts(d)(c + 1:), hi(d), ios)
             end if
             if (ios /= 0) then
                 call self%error(item%key, '(' // item%subscript // "): '" // &
@@ -1005,6 +1046,7 @@ contains
         end do
         if (best_k > 0 .and. best <= max(1, len(name) / 3)) &
             text = "; did you mean '" // trim(names(best_k)) // "'?"
+        if (len(text) == 0) text = '.'
     end function suggestion
 
     pure integer function edit_distance(a, b) result(dist)

@@ -57,6 +57,10 @@ contains
                     grp%notes = ''
                     in_group = .true.
                     open_line = tok_line
+                case (t_end)
+                    call fail(tok_line, "'/' outside a group (one closed twice, or text " // &
+                        "after a group's '/')")
+                    return
                 case default
                     call fail(tok_line, "text outside a group: '" // tok // "'")
                     return
@@ -116,6 +120,10 @@ contains
 
         subroutine store()
             type(nml_item_t) :: item
+            ! `key =` with nothing after it (a new key or '/' next) is a null value, as
+            ! `key = ,` is: the key keeps its default (an integer or logical key said
+            ! 'expects one value, got 0')
+            if (size(values) == 0) values = [nml_value_t(text='', null=.true.)]
             item%values = values
             item%key = pending_key
             item%subscript = pending_sub
@@ -146,6 +154,11 @@ contains
                     return
                 end if
                 rest = token(star + 1:)
+                ! (a list-directed read of the value would take '2*0.3' as a second count)
+                if (.not. repeat_quoted .and. index(rest, '*') > 0) then
+                    call fail(at_line, "a repeat count inside a repeat in '" // token // "'")
+                    return
+                end if
                 ! appended at once (appended one by one, 20000* took 9 s)
                 values = [values, (nml_value_t(text=rest, quoted=repeat_quoted, &
                     null=len(rest) == 0 .and. .not. repeat_quoted), k = 1, count)]
@@ -169,6 +182,11 @@ contains
                     return
                 end if
                 sub = token(p + 1:len(token) - 1)
+                ! ('key()' read as the whole array)
+                if (len_trim(sub) == 0) then
+                    call fail(tok_line, "empty subscript in '" // token // "'")
+                    return
+                end if
             end if
             if (len(key) == 0 .or. verify(key, name_chars) /= 0) &
                 call fail(tok_line, "bad key name '" // token // "' in &" // grp%name)
@@ -258,8 +276,12 @@ contains
                 ! a subscript holds neither ')' first nor '=' nor a new line: a stray
                 ! parenthesis would otherwise swallow the rest of the file
                 if (depth < 0 .or. (depth > 0 .and. (ch == '=' .or. ch == nl))) then
-                    call fail(line, "unbalanced parentheses in '" // text(start:pos - 1) // &
-                        "'")
+                    if (pos == start) then
+                        call fail(line, "a ')' without a '(' before it")
+                    else
+                        call fail(line, "unbalanced parentheses in '" // &
+                            text(start:pos - 1) // "'")
+                    end if
                     return
                 end if
                 if (depth == 0) then
@@ -302,9 +324,46 @@ contains
                 if (text(p:p) == '=') then
                     kind_out = t_name
                     pos = p + 1
+                    return
                 end if
             end if
+            ! a name whose '=' starts a later line (comments between), as Fortran's own
+            ! namelist read takes it (it was read as a value of the key before)
+            if (is_name(token)) call equals_on_later_line(kind_out)
         end subroutine next_token
+
+        !> After a name token ending at pos: when only blanks, line ends and comments come
+        !> before an '=', the token is a key: pos moves past the '=', line counts the lines.
+        subroutine equals_on_later_line(kind_out)
+            integer, intent(inout) :: kind_out
+            integer :: q, lines
+            logical :: crossed
+            q = pos
+            lines = 0
+            crossed = .false.
+            do while (q <= len(text))
+                if (text(q:q) == nl) then
+                    lines = lines + 1
+                    crossed = .true.
+                    q = q + 1
+                else if (text(q:q) == ' ' .or. text(q:q) == achar(9) .or. &
+                        text(q:q) == achar(13)) then
+                    q = q + 1
+                else if (text(q:q) == '!') then
+                    do while (q <= len(text))
+                        if (text(q:q) == nl) exit
+                        q = q + 1
+                    end do
+                else
+                    exit
+                end if
+            end do
+            if (.not. crossed .or. q > len(text)) return
+            if (text(q:q) /= '=') return
+            kind_out = t_name
+            line = line + lines
+            pos = q + 1
+        end subroutine equals_on_later_line
 
         !> The subscript at text(p:) joined to the key token when '=' follows it on
         !> its line; p left at that '='. Otherwise token and p are left as they were.
