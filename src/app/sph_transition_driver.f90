@@ -43,7 +43,7 @@ module sph_transition_driver
     use sph_initial, only: create_lattice_particles, site_filter_t
     use sph_global_ids, only: global_max_id, assign_global_ids, id_order
     use sph_cell_list, only: neighbour_list_t, build_cross_list, build_neighbour_list
-    use sph_kernel, only: kernel_t
+    use sph_kernel, only: kernel_t, kernel_lattice_sum
     use sph_transition, only: fine_virtual_positions, coarse_virtual_positions, &
         fine_virtual_split, coarse_virtual_parity, &
         interpolate_fields, virtual_id, image_source_id, bisect, fit_to_bodies, &
@@ -953,25 +953,6 @@ contains
         end do
     end subroutine set_virtual_masses
 
-    !> sum_n W(|n| dx) over the points n dx of the integer lattice in dim dimensions.
-    real(wp) function kernel_lattice_sum(kernel, dx, dim) result(total)
-        type(kernel_t), intent(in) :: kernel
-        real(wp), intent(in) :: dx
-        integer, intent(in) :: dim
-        integer :: a, b, c, reach, c_reach
-        real(wp) :: r
-        reach = ceiling(kernel%support / dx)
-        c_reach = merge(reach, 0, dim == 3)
-        total = 0.0_wp
-        do c = -c_reach, c_reach
-            do b = -reach, reach
-                do a = -reach, reach
-                    r = dx * sqrt(real(a * a + b * b + c * c, wp))
-                    if (r < kernel%support) total = total + kernel%w(r)
-                end do
-            end do
-        end do
-    end function kernel_lattice_sum
 
 
     !> Per level (0:n_levels-1): real and virtual counts, real mass and momentum (collective).
