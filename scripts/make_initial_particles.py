@@ -17,8 +17,8 @@ your own particles").
 
 Written: /particles/position, kind, id, density, root attribute dimension. Left out, so
 that the program makes them exactly as for the lattice: velocity (fluid at rest, walls
-move with their wall), mass (rho0 dx^dim), and the wall geometry (solid, wall_normal,
-wall_distance, from the solids). &body solids and the 'repulsive' wall models are not
+move with their wall), mass (the lattice's, doc/physics.md), and the wall geometry (solid,
+wall_normal, wall_distance, from the solids). &body solids and the 'repulsive' wall models are not
 handled (the script stops with a message).
 """
 import argparse

@@ -384,6 +384,14 @@ module sph_stepper
             character(len=:), allocatable :: text
         end function geometry_mismatch
 
+        !> How the masses of a checkpoint's stored input's lattice differ from cfg's ('' if
+        !> they do not; sph_stepper_checks): in a summation-density run they depend on the
+        !> kernel and h_factor (sph_initial's lattice_mass_factor).
+        module function masses_mismatch(stored, cfg) result(text)
+            type(config_t), intent(in) :: stored, cfg
+            character(len=:), allocatable :: text
+        end function masses_mismatch
+
         !> What of the wall and body particles a checkpoint's stored input laid differs from
         !> cfg's ('' if nothing; sph_stepper_checks): their layers (the kernel support over
         !> dx), the wall model, the walls' and the bodies' velocities.

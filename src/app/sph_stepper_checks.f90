@@ -4,7 +4,7 @@
 submodule (sph_stepper) sph_stepper_checks
     use sph_mpi_env, only: ranks_on_node
     use sph_logger, only: log_warn, int_text, sci_text
-    use sph_initial, only: lattice_sites_estimate
+    use sph_initial, only: lattice_sites_estimate, lattice_mass_factor
     use sph_memory, only: node_memory_bytes
     use sph_physics, only: physics_from_config
     use sph_walls, only: wall_layers
@@ -234,6 +234,24 @@ contains
             end if
         end do
     end procedure walls_mismatch
+
+    module procedure masses_mismatch
+        type(physics_t) :: before, after
+        character(len=:), allocatable :: errmsg
+        character(len=80) :: line
+        real(wp) :: f_stored, f_given
+        integer :: stat
+        text = ''
+        call physics_from_config(stored, before, stat, errmsg)
+        if (stat == 0) call physics_from_config(cfg, after, stat, errmsg)
+        if (stat /= 0) return
+        f_stored = lattice_mass_factor(stored, before)
+        f_given = lattice_mass_factor(cfg, after)
+        if (abs(f_given / f_stored - 1.0_wp) <= 1.0e-12_wp) return
+        write(line, '(a,f8.5,a,f8.5,a)') 'rho0 dx^dim times ', f_stored, ' for its input, ', &
+            f_given, ' for this one'
+        text = trim(line)
+    end procedure masses_mismatch
 
     module procedure rates_inputs_differ
         character(len=*), parameter :: groups(6) = [character(len=10) :: 'domain', 'fluid', &

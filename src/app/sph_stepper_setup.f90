@@ -8,6 +8,7 @@ submodule (sph_stepper) sph_stepper_setup
     use sph_text_lines, only: next_line
     use sph_snapshot, only: read_snapshot_header
     use sph_checkpoint, only: stored_spacing
+    use sph_initial, only: lattice_mass_factor
     implicit none
 
 contains
@@ -19,6 +20,12 @@ contains
         character(len=160) :: line
         call setup_common(sim, env, cfg)
         if (len_trim(cfg%domain%initial_particles) == 0) call check_lattice_size(sim, env)
+        if (lattice_mass_factor(cfg, sim%phys) /= 1.0_wp) then
+            write(line, '(a,f8.5,a)') "summation density: the lattice's masses are rho0 " // &
+                'dx^dim / ', 1.0_wp / lattice_mass_factor(cfg, sim%phys), ' (its kernel ' // &
+                'sum times dx^dim), so that it starts at rho0'
+            call log_info(trim(line))
+        end if
         if (len_trim(cfg%domain%initial_particles) > 0) then
             ! rows shared evenly over the ranks, then partitioned as on a restart
             call read_initial_particles(env, cfg, sim%phys, sim%solids, &
@@ -198,6 +205,11 @@ contains
                     given%fluid%rho0, ' kg/m^3; continue with the checkpoint''s rest density'
                 call fatal_collective(what, trim(line))
             end if
+            ! (a summation run's masses follow its kernel: kept, the densities start off)
+            mismatch = masses_mismatch(stored, given)
+            if (len(mismatch) > 0) call log_warn(what // ": the checkpoint's masses were " // &
+                'made for its own input (' // mismatch // '): the particles keep them, and ' // &
+                'the densities start off rho0 by their ratio')
             walls_changed = walls_mismatch(stored, given)
             if (len(walls_changed) > 0 .and. allocated(stored%regions)) then
                 if (size(stored%regions) > 0) call fatal_collective(what, 'the input ' // &

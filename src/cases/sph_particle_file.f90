@@ -24,6 +24,7 @@ module sph_particle_file
     use sph_refine, only: largest_remesh_id
     use sph_walls, only: wall_site
     use sph_eos, only: eos_pressure
+    use sph_initial, only: lattice_mass_factor
     use sph_global_ids, only: find_duplicate_ids
     use sph_read_checks, only: append_problems, fluid_too_deep, LARGEST_VALUE
     use sph_hdf5, only: h5_file_t, h5_open_read, h5_close, h5_read_rows, h5_dataset_rows, &
@@ -277,7 +278,7 @@ contains
         character(len=160) :: example(n_problems)
         character(len=len(problem_text) + 40) :: texts(n_problems)
         integer :: i, axis, solid, dim, n_solids
-        real(wp) :: normal(3), distance, lo, hi, slack
+        real(wp) :: normal(3), distance, lo, hi, slack, mass_factor
         logical :: site, outside
 
         dim = cfg%domain%dimension
@@ -291,10 +292,12 @@ contains
         allocate(too_deep(p%n_owned))
         too_deep = .false.
         slack = IN_SOLID_SLACK * phys%kernel%h
+        ! masses as the lattice's (sph_initial), so a file of its positions repeats its run
+        mass_factor = lattice_mass_factor(cfg, phys)
         do i = 1, p%n_owned
             if (.not. have(5)) p%id(i) = offset + i
             if (.not. have(2)) p%rho(i) = cfg%fluid%rho0
-            if (.not. have(3)) p%m(i) = cfg%fluid%rho0 * cfg%domain%dx**dim
+            if (.not. have(3)) p%m(i) = cfg%fluid%rho0 * cfg%domain%dx**dim * mass_factor
             if (.not. have(6)) p%kind(i) = KIND_FLUID
             if (p%kind(i) /= KIND_FLUID .and. p%kind(i) /= KIND_WALL) call problem(1)
             ! (the wall data of a file that has them: a non-finite normal trapped in the

@@ -412,6 +412,9 @@ contains
                 call self%error(key, 'a list is given whole, without a subscript')
             else if (size(self%items(i)%values) > max_count) then
                 call self%error(key, 'at most ' // itoa(max_count) // ' entries')
+            else if (size(self%items(i)%values) == 1 .and. all(self%items(i)%values%null)) then
+                ! `key =` (or `key = ,`): none, as the default
+                continue
             else if (any(self%items(i)%values%null)) then
                 call self%error(key, 'a list has no empty entries')
             else
@@ -784,12 +787,17 @@ contains
     end subroutine convert_reals
 
     !> Whether a number's digits before its exponent are not all zero ('1e-400', not
-    !> '0.0e5').
+    !> '0.0e5' nor '0.0-5', Fortran's exponent without a letter).
     logical function nonzero_mantissa(text)
         character(len=*), intent(in) :: text
-        integer :: e
+        integer :: e, sign_at
         e = scan(text, 'eEdDqQ')
         if (e == 0) e = len(text) + 1
+        ! a sign after the first character starts an exponent too
+        if (len(text) > 1) then
+            sign_at = scan(text(2:), '+-')
+            if (sign_at > 0) e = min(e, sign_at + 1)
+        end if
         nonzero_mantissa = scan(text(1:e - 1), '123456789') > 0
     end function nonzero_mantissa
 
@@ -799,10 +807,15 @@ contains
         character(len=*), intent(in) :: text
         integer, intent(out) :: value, ios
         character(len=:), allocatable :: t
-        integer :: first
+        integer :: first, k
         value = 0
         ios = 1
-        t = trim(adjustl(text))
+        t = text
+        ! (a tab is a blank here, as the list-directed read took it)
+        do k = 1, len(t)
+            if (t(k:k) == achar(9)) t(k:k) = ' '
+        end do
+        t = trim(adjustl(t))
         first = 1
         if (len(t) > 0) then
             if (t(1:1) == '+' .or. t(1:1) == '-') first = 2
@@ -1028,7 +1041,8 @@ contains
         text = text // "'"
     end function quote
 
-    !> "; did you mean 'x'?" for the closest name within a small edit distance, else ''.
+    !> "; did you mean 'x'?" for the closest name within a small edit distance, else '.'
+    !> (the end of the sentence either way).
     function suggestion(name, names) result(text)
         character(len=*), intent(in) :: name
         character(len=*), intent(in) :: names(:)

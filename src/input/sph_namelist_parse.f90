@@ -58,8 +58,8 @@ contains
                     in_group = .true.
                     open_line = tok_line
                 case (t_end)
-                    call fail(tok_line, "'/' outside a group (one closed twice, or text " // &
-                        "after a group's '/')")
+                    call fail(tok_line, "a group's end ('/' or &end) outside a group (one " // &
+                        "closed twice, or text after a group's end)")
                     return
                 case default
                     call fail(tok_line, "text outside a group: '" // tok // "'")
