@@ -563,7 +563,8 @@ contains
             ! as convert_reals: values beyond the elements are an error, not dropped
             if (size(order) > 0 .and. size(self%items(i)%values) > size(order)) &
                 call self%error(key, itoa(size(self%items(i)%values)) // ' values for ' // &
-                    itoa(size(order)) // ' element(s)' // missing_equals(self%items(i)))
+                    itoa(size(order)) // ' element(s)' // line_text(self%items(i)) // &
+                    missing_equals(self%items(i)))
             if (.not. claim_elements(self, self%items(i), order(1:n), [size(var)], set_line)) &
                 cycle
             do k = 1, n
@@ -641,7 +642,8 @@ contains
             call self%error(self%items(i)%key, 'a scalar takes no subscript')
         else if (size(self%items(i)%values) /= 1) then
             call self%error(self%items(i)%key, 'expects one value, got ' // &
-                itoa(size(self%items(i)%values)) // missing_equals(self%items(i)))
+                itoa(size(self%items(i)%values)) // line_text(self%items(i)) // &
+                missing_equals(self%items(i)))
         else
             single_value = .true.
         end if
@@ -738,7 +740,7 @@ contains
         if (size(order) == 0) return
         if (size(item%values) > size(order)) then
             call self%error(item%key, itoa(size(item%values)) // ' values for ' // &
-                itoa(size(order)) // ' element(s)' // missing_equals(item))
+                itoa(size(order)) // ' element(s)' // line_text(item) // missing_equals(item))
             return
         end if
         if (present(set_line)) then
@@ -844,7 +846,7 @@ contains
         call split_commas(item%subscript, parts)
         if (size(parts) /= size(shp)) then
             call self%error(item%key, '(' // item%subscript // ') needs ' // itoa(size(shp)) // &
-                ' subscript(s)')
+                ' subscript(s)' // line_text(item))
             return
         end if
         section = .false.
@@ -852,7 +854,8 @@ contains
             c = index(parts(d), ':')
             if (c > 0 .and. index(parts(d)(c + 1:), ':') > 0) then
                 call self%error(item%key, '(' // item%subscript // '): a stride (lo:hi:step) ' // &
-                    'is not supported; give a range lo:hi or the elements one by one')
+                    'is not supported; give a range lo:hi or the elements one by one' // &
+                    line_text(item))
                 return
             end if
             ! (each bound an integer and nothing else: a list-directed read took '2 1', '2/3',
@@ -872,17 +875,19 @@ contains
             end if
             if (ios /= 0) then
                 call self%error(item%key, '(' // item%subscript // "): '" // &
-                    trim(adjustl(parts(d))) // "' is not an integer subscript or range lo:hi")
+                    trim(adjustl(parts(d))) // "' is not an integer subscript or range lo:hi" // &
+                    line_text(item))
                 return
             end if
             if (lo(d) > hi(d)) then
                 call self%error(item%key, '(' // item%subscript // '): the range ' // &
-                    itoa(lo(d)) // ':' // itoa(hi(d)) // ' is empty (lo above hi)')
+                    itoa(lo(d)) // ':' // itoa(hi(d)) // ' is empty (lo above hi)' // &
+                    line_text(item))
                 return
             end if
             if (lo(d) < 1 .or. hi(d) > shp(d)) then
                 call self%error(item%key, '(' // item%subscript // ') is outside (' // &
-                    join_ints(shp) // ')')
+                    join_ints(shp) // ')' // line_text(item))
                 return
             end if
         end do
