@@ -48,8 +48,20 @@ contains
             case ('-V', '--version')
                 opts%show_version = .true.
             case ('--check')
+                ! (given twice, as --restart is refused: a command line built by a script
+                ! that repeats itself)
+                if (opts%check_only) then
+                    stat = 1
+                    errmsg = '--check given twice'
+                    return
+                end if
                 opts%check_only = .true.
             case ('--continue')
+                if (opts%continue_run) then
+                    stat = 1
+                    errmsg = '--continue given twice'
+                    return
+                end if
                 opts%continue_run = .true.
             case ('--restart')
                 call option_value(i, n, arg, 'a checkpoint file or a directory of ' // &
