@@ -327,9 +327,15 @@ contains
                     return
                 end if
             end if
-            ! a name whose '=' starts a later line (comments between), as Fortran's own
-            ! namelist read takes it (it was read as a value of the key before)
-            if (is_name(token)) call equals_on_later_line(kind_out)
+            ! a name (with its subscript or not) whose '=' starts a later line (comments
+            ! between), as Fortran's own namelist read takes it (it was read as a value of
+            ! the key before)
+            if (is_name(token)) then
+                call equals_on_later_line(kind_out)
+            else if (index(token, '(') > 1) then
+                if (token(len(token):len(token)) == ')' .and. &
+                    is_name(token(1:index(token, '(') - 1))) call equals_on_later_line(kind_out)
+            end if
         end subroutine next_token
 
         !> After a name token ending at pos: when only blanks, line ends and comments come
