@@ -206,33 +206,19 @@ contains
             character(len=:), allocatable, intent(out) :: token
             logical, intent(out) :: is_quoted
             integer, intent(out) :: at_line
-            integer :: start, depth, p
+            integer :: start, depth, p, lines
             character(len=1) :: ch
             is_quoted = .false.
             repeat_quoted = .false.
             token = ''
-            ! skip blanks, new lines and comments
-            do
-                if (pos > len(text)) then
-                    kind_out = t_eof
-                    at_line = line
-                    return
-                end if
-                ch = text(pos:pos)
-                if (ch == nl) then
-                    line = line + 1
-                    pos = pos + 1
-                else if (ch == ' ' .or. ch == achar(9) .or. ch == achar(13)) then
-                    pos = pos + 1
-                else if (ch == '!') then
-                    do while (pos <= len(text))
-                        if (text(pos:pos) == nl) exit
-                        pos = pos + 1
-                    end do
-                else
-                    exit
-                end if
-            end do
+            call skip_blanks(pos, lines)
+            line = line + lines
+            if (pos > len(text)) then
+                kind_out = t_eof
+                at_line = line
+                return
+            end if
+            ch = text(pos:pos)
             at_line = line
             if (ch == '&' .or. ch == '$') then
                 start = pos + 1
@@ -343,19 +329,31 @@ contains
         subroutine equals_on_later_line(kind_out)
             integer, intent(inout) :: kind_out
             integer :: q, lines
-            logical :: crossed
             q = pos
+            call skip_blanks(q, lines)
+            if (lines == 0 .or. q > len(text)) return
+            if (text(q:q) /= '=') return
+            kind_out = t_name
+            line = line + lines
+            pos = q + 1
+        end subroutine equals_on_later_line
+
+        !> q moved past blanks (spaces, tabs, carriage returns), line ends and comments, to
+        !> the next character that means something or past the end; lines: the line ends
+        !> passed.
+        subroutine skip_blanks(q, lines)
+            integer, intent(inout) :: q
+            integer, intent(out) :: lines
+            character(len=1) :: ch
             lines = 0
-            crossed = .false.
             do while (q <= len(text))
-                if (text(q:q) == nl) then
+                ch = text(q:q)
+                if (ch == nl) then
                     lines = lines + 1
-                    crossed = .true.
                     q = q + 1
-                else if (text(q:q) == ' ' .or. text(q:q) == achar(9) .or. &
-                        text(q:q) == achar(13)) then
+                else if (ch == ' ' .or. ch == achar(9) .or. ch == achar(13)) then
                     q = q + 1
-                else if (text(q:q) == '!') then
+                else if (ch == '!') then
                     do while (q <= len(text))
                         if (text(q:q) == nl) exit
                         q = q + 1
@@ -364,12 +362,7 @@ contains
                     exit
                 end if
             end do
-            if (.not. crossed .or. q > len(text)) return
-            if (text(q:q) /= '=') return
-            kind_out = t_name
-            line = line + lines
-            pos = q + 1
-        end subroutine equals_on_later_line
+        end subroutine skip_blanks
 
         !> The subscript at text(p:) joined to the key token when '=' follows it on
         !> its line; p left at that '='. Otherwise token and p are left as they were.
