@@ -5,7 +5,7 @@ module sph_simulation
     use sph_kinds, only: wp, i8
     use sph_config, only: config_t
     use sph_mpi_env, only: mpi_env_t
-    use sph_errors, only: fatal_collective
+    use sph_errors, only: fatal_collective, STATUS_OUTPUT_FAILED
     use sph_stepper, only: simulation_t, simulation_setup, simulation_restart, &
         simulation_step, simulation_rebalance, simulation_write_snapshot
     use sph_schedule, only: schedule_t, schedule_init, schedule_dt_cap, schedule_after_step, &
@@ -77,7 +77,8 @@ contains
         call set_aside_earlier_output(env, trim(cfg%output%output_dir), &
             trim(cfg%run%case_name), after_step, moved, folder, stat, errmsg)
         if (stat /= 0) call fatal_collective('output', errmsg // '; nothing was ' // &
-            'overwritten: move the earlier files away or choose another &output output_dir')
+            'overwritten: move the earlier files away or choose another &output output_dir', &
+            STATUS_OUTPUT_FAILED)
         if (moved == 0) return
         write(count_text, '(i0)') moved
         if (after_step < 0) then

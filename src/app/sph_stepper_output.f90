@@ -12,7 +12,9 @@ submodule (sph_stepper) sph_stepper_output
     use sph_snapshot, only: write_snapshot
     use sph_checkpoint, only: write_checkpoint, checkpoint_filename
     use sph_xdmf, only: xdmf_index_entry, write_xdmf
-    use sph_filesystem, only: delete_file, make_directories
+    use sph_filesystem, only: delete_file, make_directories, write_text_file, &
+        write_text_file_whole, text_buffer_t, ends_with_new_line
+    use sph_errors, only: STATUS_OUTPUT_FAILED
     implicit none
 
 contains
@@ -38,7 +40,8 @@ contains
             errmsg, sim%cfg%domain%dx, balance)
         ! (stat 2: not the folder's fault)
         if (stat == 2) call fatal_collective('checkpoint', errmsg)
-        if (stat /= 0) call fatal_collective('checkpoint', errmsg // ' (&output output_dir)')
+        if (stat /= 0) call fatal_collective('checkpoint', errmsg // ' (&output output_dir)', &
+            STATUS_OUTPUT_FAILED)
         if (all(sim%checkpoints /= path)) &
             sim%checkpoints = [character(len=512) :: sim%checkpoints, path]
         do while (size(sim%checkpoints) > sim%cfg%restart%checkpoints_kept)
@@ -63,9 +66,10 @@ contains
     module procedure simulation_write_forces
         real(wp), allocatable :: forces(:, :, :), mean(:, :, :)
         real(wp) :: window
-        character(len=:), allocatable :: path
+        character(len=:), allocatable :: path, reason
         character(len=512) :: line
-        integer :: unit, k, stat
+        type(text_buffer_t) :: rows
+        integer :: k, stat
         logical :: exists
         if (size(sim%solids%list) == 0) return
         forces = simulation_solid_forces(sim, env)
@@ -82,33 +86,42 @@ contains
         path = trim(sim%cfg%output%output_dir) // '/' // trim(sim%cfg%run%case_name) // &
             '_forces.csv'
         stat = 0
+        reason = ''
         if (env%rank == 0) then
             ! a restart into a new output folder writes its forces before any snapshot
             call make_directories(trim(sim%cfg%output%output_dir), stat)
             inquire(file=path, exist=exists)
             if (stat /= 0) then
-                continue
-            else if (fresh .or. .not. exists) then
-                open(newunit=unit, file=path, status='replace', action='write', iostat=stat)
-                if (stat == 0) write(unit, '(a)') 'time,step,body,Fx,Fy,Fz,Fx_pressure,' // &
-                    'Fy_pressure,Fz_pressure,Fx_viscous,Fy_viscous,Fz_viscous,' // &
-                    'Fx_mean,Fy_mean,Fz_mean'
+                reason = 'the folder cannot be made'
             else
-                open(newunit=unit, file=path, status='old', position='append', &
-                    action='write', iostat=stat)
-            end if
-            if (stat == 0) then
+                ! the rows appended whole or not at all (a full disk left a row cut short)
+                if (fresh .or. .not. exists) call rows%put('time,step,body,Fx,Fy,Fz,' // &
+                    'Fx_pressure,Fy_pressure,Fz_pressure,Fx_viscous,Fy_viscous,Fz_viscous,' // &
+                    'Fx_mean,Fy_mean,Fz_mean' // new_line('a'))
                 do k = 1, size(forces, 3)
                     write(line, '(es24.16,",",i0,",",a,12(",",es24.16))') sim%time, sim%step, &
                         trim(sim%solids%list(k)%name), forces(:, 1, k) + forces(:, 2, k), &
                         forces(:, 1, k), forces(:, 2, k), mean(:, 1, k) + mean(:, 2, k)
-                    write(unit, '(a)') trim(line)
+                    call rows%put(trim(line) // new_line('a'))
                 end do
-                close(unit)
+                if (fresh .or. .not. exists) then
+                    call write_text_file_whole(path, rows%text(1:rows%used), stat, reason)
+                else
+                    ! a row cut short by an older run (a full disk, a crash) is not continued:
+                    ! the new rows start on a line of their own
+                    if (ends_with_new_line(path)) then
+                        call write_text_file(path, rows%text(1:rows%used), stat, reason, &
+                            append=.true.)
+                    else
+                        call write_text_file(path, new_line('a') // rows%text(1:rows%used), &
+                            stat, reason, append=.true.)
+                    end if
+                end if
             end if
         end if
-        if (global_max(env, int(stat, i8)) /= 0) &
-            call fatal_collective('output', "cannot write the forces to '" // path // "'")
+        if (global_max(env, int(stat, i8)) /= 0) call fatal_collective('output', &
+            "cannot write the forces to '" // path // "': " // reason // &
+            ' (&output output_dir; the rows before are whole)', STATUS_OUTPUT_FAILED)
     end procedure simulation_write_forces
 
     module procedure simulation_log_forces
@@ -286,7 +299,8 @@ contains
         call write_snapshot(env, sim%p, path, sim%time, sim%step, sim%cfg%domain%dimension, &
             code_version, sim%input_text, stat, errmsg, with_virtual=writes_virtual(sim))
         ! (the folder is the user's key: named, since the message gives the path only)
-        if (stat /= 0) call fatal_collective('output', errmsg // ' (&output output_dir)')
+        if (stat /= 0) call fatal_collective('output', errmsg // ' (&output output_dir)', &
+            STATUS_OUTPUT_FAILED)
         rows = global_sum(env, int(count(sim%p%kind(1:sim%p%n_owned) /= KIND_VIRTUAL .or. &
             writes_virtual(sim)), i8))
         k = index(path, '/', back=.true.)
@@ -295,9 +309,11 @@ contains
         xdmf_path = trim(sim%cfg%output%output_dir) // '/' // trim(sim%cfg%run%case_name) // &
             '.xdmf'
         stat = 0
-        if (env%rank == 0) call write_xdmf(xdmf_path, sim%snapshot_index, stat)
-        if (global_max(env, int(stat, i8)) /= 0) &
-            call fatal_collective('output', "cannot write '" // xdmf_path // "'")
+        message = ''
+        if (env%rank == 0) call write_xdmf(xdmf_path, sim%snapshot_index, stat, message)
+        if (global_max(env, int(stat, i8)) /= 0) call fatal_collective('output', &
+            "cannot write '" // xdmf_path // "': " // message // &
+            ' (&output output_dir; the earlier files are whole)', STATUS_OUTPUT_FAILED)
         ! (the path in a string of its own length: a fixed line cut long paths short)
         write(line, '(es12.5)') sim%time
         message = 'snapshot t = ' // trim(line) // ' s: ' // path

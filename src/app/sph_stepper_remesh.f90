@@ -16,6 +16,7 @@ submodule (sph_stepper) sph_stepper_remesh
         REMESH_NONE, REMESH_REFINE, REMESH_COARSEN, REMESH_SAME, NARROW_GAP
     use sph_rates, only: compute_summation_density
     use sph_particles, only: HALO_GHOST
+    use sph_errors, only: STATUS_OUTPUT_FAILED
     use sph_domain_input, only: misfit_axis
     implicit none
 
@@ -487,7 +488,8 @@ contains
         call write_checkpoint(env, sim%p, sim%domain, out_path, sim%time, sim%step, &
             sim%cfg%domain%dimension, code_version, input_text, '', stat, errmsg, &
             sim%cfg%domain%dx)
-        if (stat /= 0) call fatal_collective('remesh', errmsg)
+        if (stat == 2) call fatal_collective('remesh', errmsg)
+        if (stat /= 0) call fatal_collective('remesh', errmsg, STATUS_OUTPUT_FAILED)
         write(number, '(es15.8)') sim%cfg%domain%dx
         ! (not where no run can continue it: the warning before the work said so, and the
         ! hint sent users to a restart that every input refuses)
@@ -542,7 +544,8 @@ contains
         call write_checkpoint(env, sim%p, sim%domain, out_path, sim%time, sim%step, &
             sim%cfg%domain%dimension, code_version, sim%input_text, sim%snapshot_index, stat, &
             errmsg, sim%cfg%domain%dx, balance)
-        if (stat /= 0) call fatal_collective('remesh', errmsg)
+        if (stat == 2) call fatal_collective('remesh', errmsg)
+        if (stat /= 0) call fatal_collective('remesh', errmsg, STATUS_OUTPUT_FAILED)
         call log_info('remesh: checkpoint ' // out_path // ' written; continue with ' // &
             'sphremesh ' // regions_path // ' --restart ' // out_path)
     end procedure simulation_refine_regions_file

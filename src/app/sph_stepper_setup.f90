@@ -251,6 +251,8 @@ contains
         if (given%remesh%every_time > 0.0_wp) sim%next_remesh_time = &
             next_multiple(sim%time, given%remesh%every_time)
         sim%snapshot_index = index_text
+        if (what == 'restart') call keep_listed_snapshots(sim, env, &
+            trim(given%output%output_dir))
         if (.not. same_layout) then
             call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
             call migrate(sim, env)
@@ -281,6 +283,48 @@ contains
             'from the one stored in the checkpoint; the new input is used')
         call log_setup(sim, env)
     end procedure simulation_restart
+
+    !> The checkpoint's snapshot index (the .xdmf series) without the snapshots that are not
+    !> in `folder`: a run continued into another output_dir (from a checkpoint in an
+    !> archive) listed the earlier snapshots by bare name where they are not, and its series
+    !> did not open. They stay where they were written; the log says so. Rank 0 looks, every
+    !> rank takes its answer.
+    subroutine keep_listed_snapshots(sim, env, folder)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        character(len=*), intent(in) :: folder
+        character(len=:), allocatable :: kept, entry
+        character(len=512) :: file_name
+        character(len=32) :: number
+        real(wp) :: time
+        integer(i8) :: step, rows
+        integer :: start, ios, dropped
+        logical :: exists
+        if (env%rank == 0) then
+            kept = ''
+            dropped = 0
+            start = 1
+            do while (start <= len(sim%snapshot_index))
+                call next_line(sim%snapshot_index, start, entry)
+                read(entry, *, iostat=ios) time, step, rows, file_name
+                if (ios /= 0) cycle
+                inquire(file=folder // '/' // trim(file_name), exist=exists)
+                if (exists) then
+                    kept = kept // entry // new_line('a')
+                else
+                    dropped = dropped + 1
+                end if
+            end do
+            sim%snapshot_index = kept
+            if (dropped > 0) then
+                write(number, '(i0)') dropped
+                call log_warn('restart: ' // trim(number) // ' earlier snapshot(s) of the ' // &
+                    "checkpoint's series are not in '" // folder // "' (they stay where " // &
+                    "they were written); its .xdmf lists the snapshots that are there")
+            end if
+        end if
+        call broadcast_text(env, sim%snapshot_index)
+    end subroutine keep_listed_snapshots
 
     !> A run that refines or coarsens in its course (&remesh) writes its later checkpoints at
     !> the new spacing (their attribute dx) with its input as given. Continued with that same

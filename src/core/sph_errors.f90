@@ -11,6 +11,12 @@ module sph_errors
     private
     public :: fatal_collective, fatal_abort, check_mpi, set_error_comm, exit_process
 
+    !> Exit status of a run stopped because an output file could not be written (a full or
+    !> read-only file system): the files written before are whole and a restart continues
+    !> from the newest checkpoint. 74 is EX_IOERR of sysexits.h, as 75 (stopped early, a
+    !> checkpoint written) is EX_TEMPFAIL.
+    integer, parameter, public :: STATUS_OUTPUT_FAILED = 74
+
     type(MPI_Comm), save :: error_comm  !< set once by sph_mpi_env; MPI_COMM_SELF until then
     logical, save :: have_comm = .false.
 
@@ -31,7 +37,8 @@ contains
     end subroutine set_error_comm
 
     !> Collective stop: same condition on every rank; one message from rank 0; exit status 1
-    !> (bad input, set-up), or `status` (3: the run became unhealthy, see sph_health).
+    !> (bad input, set-up), or `status` (3: the run became unhealthy, see sph_health;
+    !> STATUS_OUTPUT_FAILED).
     subroutine fatal_collective(where, message, status)
         character(len=*), intent(in) :: where, message
         integer, intent(in), optional :: status

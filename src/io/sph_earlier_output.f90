@@ -18,7 +18,8 @@
 module sph_earlier_output
     use sph_kinds, only: i8
     use sph_mpi_env, only: mpi_env_t, broadcast_text
-    use sph_filesystem, only: list_directory, make_directories, rename_file, link_file
+    use sph_filesystem, only: list_directory, make_directories, rename_file, link_file, &
+        write_text_file_whole, text_buffer_t, remove_empty_directory, delete_file
     use sph_text_lines, only: next_line
     implicit none
     private
@@ -77,7 +78,8 @@ contains
     !> run (all of them), else the step the run continues from (the stepped files after it).
     !> Collective; rank 0 moves. moved: how many files (0: nothing there, or no directory
     !> yet); folder: where they went. stat /= 0 with errmsg when a file could not be moved
-    !> (then the ones moved before it are in folder, and nothing was overwritten).
+    !> (then the ones moved before it are moved back, so that the earlier run's files stay
+    !> together, and nothing was overwritten).
     subroutine set_aside_earlier_output(env, directory, case_name, after_step, moved, folder, &
             stat, errmsg)
         type(mpi_env_t), intent(in) :: env
@@ -87,6 +89,8 @@ contains
         character(len=:), allocatable, intent(out) :: folder, errmsg
         character(len=:), allocatable :: listing, name, result_text
         character(len=32) :: number
+        !> the names moved so far, one per line (moved back when a later one cannot move)
+        type(text_buffer_t) :: moved_names
         integer :: start, k, list_stat, n
         integer(i8) :: step
         logical :: exists
@@ -120,8 +124,10 @@ contains
                 if (stat /= 0) then
                     errmsg = "cannot move '" // directory // '/' // name // "' to '" // &
                         folder // "'"
+                    call move_back()
                     exit
                 end if
+                call moved_names%put(name // new_line('a'))
                 moved = moved + 1
             end do
             ! a restart continues the forces file and the index: the earlier continuation's
@@ -142,12 +148,37 @@ contains
 
     contains
 
+        !> Rank 0: the files moved so far back where they were (a move that stopped half-way
+        !> split the earlier run over two folders, its .xdmf in one and some of its
+        !> snapshots in the other); errmsg says whether they all went back.
+        subroutine move_back()
+            character(len=:), allocatable :: back
+            integer :: at, back_stat, failed
+            failed = 0
+            at = 1
+            do while (at <= moved_names%used)
+                call next_line(moved_names%text(1:moved_names%used), at, back)
+                call rename_file(folder // '/' // back, directory // '/' // back, back_stat)
+                if (back_stat /= 0) failed = failed + 1
+            end do
+            if (failed == 0) then
+                if (moved > 0) errmsg = errmsg // ' (the files moved before it are back ' // &
+                    'in place)'
+                call remove_empty_directory(folder)
+            else
+                write(number, '(i0)') failed
+                errmsg = errmsg // ' (' // trim(number) // " of the files moved before it " // &
+                    "could not be moved back: they are in '" // folder // "')"
+            end if
+            moved = 0
+        end subroutine move_back
+
         !> Rank 0, a restart: when `<case>_forces.csv` has rows of steps after after_step, it
         !> goes whole into the folder and its rows up to after_step (and the header) are
         !> written back in its place; when files were set aside, a copy of `<case>.xdmf` goes
         !> with them.
         subroutine split_continued_files()
-            character(len=:), allocatable :: text, kept, line, path
+            character(len=:), allocatable :: text, kept, line, path, reason
             integer :: start, comma, second, read_stat
             integer(i8) :: row_step
             logical :: later
@@ -167,7 +198,9 @@ contains
                         read(line(comma + 1:comma + second - 1), *, iostat=read_stat) row_step
                         if (read_stat /= 0) row_step = -1
                     end if
-                    if (row_step > after_step) then
+                    ! (a row whose step cannot be read, cut short by a full disk or a crash,
+                    ! goes with the later rows: kept, it sat among them as a malformed row)
+                    if (row_step > after_step .or. (row_step < 0 .and. len(kept) > 0)) then
                         later = .true.
                     else
                         kept = kept // line // new_line('a')
@@ -177,20 +210,27 @@ contains
                     if (moved == 0) call new_folder(folder, stat)
                     if (stat == 0) call rename_file(path, folder // '/' // case_name // &
                         '_forces.csv', stat)
-                    if (stat == 0) call write_whole(path, kept, stat)
+                    if (stat == 0) then
+                        call moved_names%put(case_name // '_forces.csv' // new_line('a'))
+                        moved = moved + 1
+                    end if
+                    reason = ''
+                    if (stat == 0) call write_text_file_whole(path, kept, stat, reason)
                     if (stat /= 0) then
                         write(number, '(i0)') after_step
                         errmsg = 'cannot set the rows after step ' // trim(number) // " of '" &
                             // path // "' aside"
+                        if (len(reason) > 0) errmsg = errmsg // ': ' // reason
+                        call move_back()
                         return
                     end if
-                    moved = moved + 1
                 end if
             end if
             if (moved == 0) return
             call read_whole(directory // '/' // case_name // '.xdmf', text, read_stat)
             if (read_stat == 0) call write_series_copy(text, folder // '/' // case_name // &
-                '.xdmf')
+                '.xdmf', stat)
+            if (stat /= 0) call move_back()
         end subroutine split_continued_files
 
         !> The `.xdmf` text written to `path` for the set-aside folder: its snapshots of steps
@@ -199,15 +239,15 @@ contains
         !> link: no copy, and it stays whole there when a later run moves or replaces the
         !> one above); where a link cannot be made, the copy names it as `../<name>`. Written
         !> piece by piece (a series of 10^4 snapshots is MBs of text).
-        subroutine write_series_copy(xdmf, path)
+        subroutine write_series_copy(xdmf, path, st)
             character(len=*), intent(in) :: xdmf, path
+            integer, intent(out) :: st
             character(len=*), parameter :: MARK = 'Format="HDF">'
-            integer :: at, colon, k, unit, st, io
+            type(text_buffer_t) :: copy, links
+            character(len=:), allocatable :: reason, name
+            integer :: at, colon, k, link_stat
             integer(i8) :: step, last_step
             logical :: linked
-            open(newunit=unit, file=path // '.tmp', access='stream', form='unformatted', &
-                status='replace', action='write', iostat=io)
-            if (io /= 0) return
             last_step = -1_i8
             linked = .true.
             at = 1
@@ -215,7 +255,7 @@ contains
                 k = index(xdmf(at:), MARK)
                 if (k == 0) exit
                 k = at + k - 1 + len(MARK)
-                if (io == 0) write(unit, iostat=io) xdmf(at:k - 1)
+                call copy%put(xdmf(at:k - 1))
                 colon = index(xdmf(k:), ':')
                 at = k
                 if (colon == 0) cycle
@@ -224,20 +264,24 @@ contains
                 ! (a step's many items name one file: linked once)
                 if (step /= last_step) then
                     call link_file(directory // '/' // xdmf(k:k + colon - 2), folder // '/' // &
-                        xdmf(k:k + colon - 2), st)
-                    linked = st == 0
+                        xdmf(k:k + colon - 2), link_stat)
+                    linked = link_stat == 0
+                    if (linked) call links%put(xdmf(k:k + colon - 2) // new_line('a'))
                     last_step = step
                 end if
-                if (.not. linked .and. io == 0) write(unit, iostat=io) '../'
+                if (.not. linked) call copy%put('../')
             end do
-            if (io == 0) write(unit, iostat=io) xdmf(at:)
+            call copy%put(xdmf(at:))
             ! (a copy that could not be written whole is not left half-written)
-            if (io == 0) then
-                close(unit)
-                call rename_file(path // '.tmp', path, st)
-            else
-                close(unit, status='delete')
-            end if
+            call write_text_file_whole(path, copy%text(1:copy%used), st, reason)
+            if (st == 0) return
+            errmsg = "cannot write '" // path // "': " // reason
+            ! the links go (the originals stay where they are), so the folder empties
+            at = 1
+            do while (at <= links%used)
+                call next_line(links%text(1:links%used), at, name)
+                call delete_file(folder // '/' // name)
+            end do
         end subroutine write_series_copy
 
         !> The first `<directory>/<case>_earlier_<N>` that does not exist, made.
@@ -283,18 +327,4 @@ contains
         end if
         close(unit)
     end subroutine read_whole
-
-    !> A text file written whole under a temporary name, then renamed (a file with its final
-    !> name is complete, as every output file).
-    subroutine write_whole(path, text, st)
-        character(len=*), intent(in) :: path, text
-        integer, intent(out) :: st
-        integer :: unit
-        open(newunit=unit, file=path // '.tmp', access='stream', form='unformatted', &
-            status='replace', action='write', iostat=st)
-        if (st /= 0) return
-        write(unit, iostat=st) text
-        close(unit)
-        if (st == 0) call rename_file(path // '.tmp', path, st)
-    end subroutine write_whole
 end module sph_earlier_output

@@ -1,12 +1,26 @@
-!> File-system operations Fortran lacks, in one place: mkdir -p, rename, link, delete and directory
-!> listing (libc through bind(C); the listing through sph_directory.c). Serial: the caller
-!> decides which rank acts.
+!> File-system operations Fortran lacks, in one place: mkdir -p, rename, link, delete, directory
+!> listing, checked text-file writes and free space (libc through bind(C); the listing
+!> through sph_directory.c, the writes and free space through sph_file_write.c). Serial: the
+!> caller decides which rank acts.
 module sph_filesystem
-    use, intrinsic :: iso_c_binding, only: c_char, c_int, c_null_char
+    use, intrinsic :: iso_c_binding, only: c_char, c_int, c_long_long, c_null_char
+    use sph_kinds, only: i8
     implicit none
     private
     public :: make_directories, rename_file, link_file, delete_file, list_directory
+    public :: remove_empty_directory
+    public :: write_text_file, write_text_file_whole, free_bytes, ends_with_new_line
+    public :: text_buffer_t
     public :: MAX_FILE_PATH
+
+    !> Text built up piece by piece (an .xdmf of 10^4 snapshots is MBs: appending to a
+    !> character variable would copy it at every piece); text(1:used) is the content.
+    type :: text_buffer_t
+        character(len=:), allocatable :: text
+        integer :: used = 0
+    contains
+        procedure :: put => text_buffer_put
+    end type text_buffer_t
 
     !> The longest file path handed to HDF5 over MPI-IO: Open MPI's I/O component (4.1)
     !> builds names in a fixed buffer and aborts the process beyond about 243 characters
@@ -23,6 +37,10 @@ module sph_filesystem
             import :: c_char, c_int
             character(kind=c_char), intent(in) :: old(*), new(*)
         end function c_rename
+        integer(c_int) function c_rmdir(path) bind(C, name="rmdir")
+            import :: c_char, c_int
+            character(kind=c_char), intent(in) :: path(*)
+        end function c_rmdir
         integer(c_int) function c_link(old, new) bind(C, name="link")
             import :: c_char, c_int
             character(kind=c_char), intent(in) :: old(*), new(*)
@@ -34,6 +52,18 @@ module sph_filesystem
             character(kind=c_char), intent(out) :: buffer(*)
             integer(c_int), value :: capacity
         end function c_list_directory
+        integer(c_int) function c_write_bytes(path, data, n, append, message, capacity) &
+                bind(C, name="sph_write_bytes")
+            import :: c_char, c_int, c_long_long
+            character(kind=c_char), intent(in) :: path(*), data(*)
+            integer(c_long_long), value :: n
+            integer(c_int), value :: append, capacity
+            character(kind=c_char), intent(out) :: message(*)
+        end function c_write_bytes
+        integer(c_long_long) function c_free_bytes(path) bind(C, name="sph_free_bytes")
+            import :: c_char, c_long_long
+            character(kind=c_char), intent(in) :: path(*)
+        end function c_free_bytes
     end interface
 
     integer, parameter :: listing_capacity = 4 * 1024 * 1024
@@ -81,6 +111,13 @@ contains
         if (c_link(from // c_null_char, to // c_null_char) /= 0) stat = 1
     end subroutine link_file
 
+    !> Remove a folder if it is empty (else, or when it cannot be removed, it stays).
+    subroutine remove_empty_directory(path)
+        character(len=*), intent(in) :: path
+        integer(c_int) :: rc
+        rc = c_rmdir(path // c_null_char)
+    end subroutine remove_empty_directory
+
     !> Remove a file if it exists.
     subroutine delete_file(path)
         character(len=*), intent(in) :: path
@@ -105,4 +142,79 @@ contains
             listing(k:k) = buffer(k)
         end do
     end subroutine list_directory
+
+    !> Write `text` to `path`, replacing it, or after its contents with append = .true. (a
+    !> failed append leaves the file as it was). Every write and the close are checked (a
+    !> Fortran WRITE to a full disk reports nothing). stat /= 0 and errmsg (the system's
+    !> reason, e.g. 'No space left on device') on failure.
+    subroutine write_text_file(path, text, stat, errmsg, append)
+        character(len=*), intent(in) :: path, text
+        integer, intent(out) :: stat
+        character(len=:), allocatable, intent(out) :: errmsg
+        logical, intent(in), optional :: append
+        character(kind=c_char, len=200) :: message
+        integer(c_int) :: mode
+        mode = 0
+        if (present(append)) mode = merge(1, 0, append)
+        message = ''
+        stat = int(c_write_bytes(path // c_null_char, text, int(len(text), c_long_long), mode, &
+            message, len(message, c_int)))
+        errmsg = trim(message)
+    end subroutine write_text_file
+
+    !> Write `text` to `path` whole or not at all: under `path`.tmp, renamed when complete;
+    !> on failure the .tmp is removed and `path` is as it was.
+    subroutine write_text_file_whole(path, text, stat, errmsg)
+        character(len=*), intent(in) :: path, text
+        integer, intent(out) :: stat
+        character(len=:), allocatable, intent(out) :: errmsg
+        call write_text_file(path // '.tmp', text, stat, errmsg)
+        if (stat == 0) then
+            call rename_file(path // '.tmp', path, stat)
+            if (stat /= 0) errmsg = "cannot rename it from '" // path // ".tmp'"
+        end if
+        if (stat /= 0) call delete_file(path // '.tmp')
+    end subroutine write_text_file_whole
+
+    !> Whether the file `path` is empty or ends with a new line (a missing or unreadable
+    !> file counts as ending with one).
+    logical function ends_with_new_line(path)
+        character(len=*), intent(in) :: path
+        integer :: unit, stat
+        integer(i8) :: bytes
+        character :: last
+        ends_with_new_line = .true.
+        open(newunit=unit, file=path, access='stream', form='unformatted', status='old', &
+            action='read', iostat=stat)
+        if (stat /= 0) return
+        inquire(unit=unit, size=bytes)
+        if (bytes > 0) then
+            read(unit, pos=bytes, iostat=stat) last
+            if (stat == 0) ends_with_new_line = last == new_line('a')
+        end if
+        close(unit)
+    end function ends_with_new_line
+
+    !> Bytes free for writing on the file system that holds `path` (a file or folder that
+    !> exists); -1 when that cannot be asked.
+    integer(i8) function free_bytes(path)
+        character(len=*), intent(in) :: path
+        free_bytes = int(c_free_bytes(trim(path) // c_null_char), i8)
+    end function free_bytes
+
+    !> Append `piece` to the buffer (its storage doubles as needed).
+    subroutine text_buffer_put(buffer, piece)
+        class(text_buffer_t), intent(inout) :: buffer
+        character(len=*), intent(in) :: piece
+        character(len=:), allocatable :: grown
+        if (.not. allocated(buffer%text)) allocate(character(len=max(4096, len(piece))) :: &
+            buffer%text)
+        if (buffer%used + len(piece) > len(buffer%text)) then
+            allocate(character(len=max(2 * len(buffer%text), buffer%used + len(piece))) :: grown)
+            grown(1:buffer%used) = buffer%text(1:buffer%used)
+            call move_alloc(grown, buffer%text)
+        end if
+        buffer%text(buffer%used + 1:buffer%used + len(piece)) = piece
+        buffer%used = buffer%used + len(piece)
+    end subroutine text_buffer_put
 end module sph_filesystem

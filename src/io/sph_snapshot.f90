@@ -12,17 +12,17 @@
 !> optional stat/errmsg; without stat a failure stops through sph_errors.
 module sph_snapshot
     use sph_kinds, only: wp, i4, i8
-    use sph_mpi_env, only: mpi_env_t, global_max, broadcast_text, agreed_status
+    use sph_mpi_env, only: mpi_env_t, global_max, global_sum, broadcast_text, agreed_status
     use sph_logger, only: int_text
     use sph_errors, only: fatal_collective, fatal_abort
     use sph_particles, only: particles_t, particles_reserve, particles_clear, particles_visit, &
         field_list, &
         field_info_t, field_op_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL, FIELD_SNAPSHOT, &
-        FIELD_OPTIONAL, FIELD_REAL
+        FIELD_OPTIONAL, FIELD_REAL, FIELD_CHECKPOINT, pack_widths
     use sph_hdf5, only: h5_file_t, h5_create, h5_open_read, h5_close, h5_group_create, &
         h5_row_layout, h5_write_rows, h5_read_rows, h5_dataset_rows, h5_write_attribute, &
         h5_read_attribute
-    use sph_filesystem, only: make_directories, rename_file
+    use sph_filesystem, only: make_directories, rename_file, free_bytes
     use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
     implicit none
     private
@@ -99,7 +99,7 @@ contains
     !> datasets; the caller may add more (checkpoints do) before snapshot_end. On failure
     !> (stat /= 0, the same on every rank) no file is left open.
     subroutine snapshot_begin(env, p, path, time, step, dimension, code_version, input_text, &
-                              file, stat, errmsg, with_virtual)
+                              file, stat, errmsg, with_virtual, checkpoint_fields)
         type(mpi_env_t), intent(in) :: env
         type(particles_t), intent(inout) :: p
         character(len=*), intent(in) :: path, code_version, input_text
@@ -110,6 +110,8 @@ contains
         integer, intent(out) :: stat
         character(len=:), allocatable, intent(out) :: errmsg
         logical, intent(in), optional :: with_virtual
+        !> the caller adds the checkpoint fields (write_checkpoint): room for them too
+        logical, intent(in), optional :: checkpoint_fields
         integer :: n, i, dir_end, my_stat
         logical :: virtual_rows
         integer(i8) :: offset, total
@@ -129,13 +131,6 @@ contains
                 "' for '" // path // "'"
             return
         end if
-        call h5_create(env, path // '.tmp', file, my_stat, errmsg)
-        stat = agreed_status(env, my_stat)
-        if (stat /= 0) then
-            if (my_stat == 0) call fatal_abort('snapshot_begin', "'" // path // &
-                ".tmp' was created on some ranks only")
-            return
-        end if
 
         ! the rows: owned particles in their storage order (virtual ones unless left out)
         virtual_rows = .true.
@@ -149,6 +144,17 @@ contains
                 rows(n) = i
             end if
         end do
+        call check_room(path(1:max(dir_end - 1, 0)), global_sum(env, int(n, i8)), &
+            len(input_text), stat, errmsg, checkpoint_fields)
+        if (stat /= 0) return
+
+        call h5_create(env, path // '.tmp', file, my_stat, errmsg)
+        stat = agreed_status(env, my_stat)
+        if (stat /= 0) then
+            if (my_stat == 0) call fatal_abort('snapshot_begin', "'" // path // &
+                ".tmp' was created on some ranks only")
+            return
+        end if
         call h5_row_layout(env, n, offset, total)
 
         ! attributes are metadata: the same value on every rank, so the date is rank 0's
@@ -170,6 +176,57 @@ contains
         allocate(ints(max(n, 1)))
         ints(1:n) = int(env%rank, i4)
         call h5_write_rows(env, file, 'particles/rank', ints, n, offset, total)
+
+    contains
+
+        !> Whether the file system of `folder` ('' = the working directory) has room for a file
+        !> of `rows` particles (with the checkpoint fields when asked) and the input text
+        !> (collective: rank 0 asks, all agree). A full disk found by HDF5 instead failed in its
+        !> close: the ranks crashed in the finalisation that followed, or hung when one rank's
+        !> flush failed alone (Open MPI's I/O and HDF5 1.10). The file's size is the rows'
+        !> values, at most 8 bytes each, with a margin for the metadata; where the free space
+        !> cannot be asked, the write goes ahead. stat 3 and errmsg when there is no room.
+        subroutine check_room(folder, rows, text_bytes, stat, errmsg, checkpoint_fields)
+            character(len=*), intent(in) :: folder
+            integer(i8), intent(in) :: rows
+            integer, intent(in) :: text_bytes
+            integer, intent(out) :: stat
+            character(len=:), allocatable, intent(out) :: errmsg
+            logical, intent(in), optional :: checkpoint_fields
+            integer, parameter :: ROOM_MARGIN = 64 * 1024
+            integer :: n_real, n_int, ckpt_real, ckpt_int
+            integer(i8) :: need, free
+            character(len=80) :: text
+            errmsg = ''
+            call pack_widths(p, FIELD_SNAPSHOT, n_real, n_int)
+            if (present(checkpoint_fields)) then
+                if (checkpoint_fields) then
+                    call pack_widths(p, FIELD_CHECKPOINT, ckpt_real, ckpt_int)
+                    n_real = n_real + ckpt_real
+                    n_int = n_int + ckpt_int
+                end if
+            end if
+            ! (+1: the writing rank of each row)
+            need = rows * int(8 * (n_real + n_int + 1), i8)
+            need = need + need / 50 + int(text_bytes, i8) + ROOM_MARGIN
+            free = -1
+            if (env%rank == 0) then
+                if (len(folder) > 0) then
+                    free = free_bytes(folder)
+                else
+                    free = free_bytes('.')
+                end if
+            end if
+            free = global_max(env, free)
+            stat = 0
+            if (free < 0 .or. free >= need) return
+            stat = 3
+            write(text, '(f12.2, a, f12.2, a)') real(free, wp) / 1.0e6_wp, ' MB free, the ' // &
+                'file needs about ', real(need, wp) / 1.0e6_wp, ' MB'
+            errmsg = "no room for '" // path // "' on its file system (" // &
+                trim(adjustl(text)) // &
+                '): nothing of it was written'
+        end subroutine check_room
     end subroutine snapshot_begin
 
     !> The write_complete marker last, close, and rename `path`.tmp to `path` (rank 0). The
