@@ -233,6 +233,13 @@ module sph_stepper
             type(mpi_env_t), intent(in) :: env
         end subroutine remesh_if_due
 
+        !> --check's line on the memory a run's &remesh will take on top of what the set-up
+        !> measured (nothing without &remesh; collective; sph_stepper_remesh).
+        module subroutine log_remesh_memory(sim, env)
+            type(simulation_t), intent(in) :: sim
+            type(mpi_env_t), intent(in) :: env
+        end subroutine log_remesh_memory
+
         !> Remesh every fluid particle (sph_remesh_driver: refine, coarsen or same level) and
         !> rebuild around them (collective). Refining or coarsening changes &domain dx in the
         !> run's configuration (kernel, walls, time step follow) and regenerates the wall

@@ -17,6 +17,7 @@ submodule (sph_stepper) sph_stepper_remesh
     use sph_rates, only: compute_summation_density
     use sph_particles, only: HALO_GHOST
     use sph_errors, only: STATUS_OUTPUT_FAILED
+    use sph_memory, only: peak_resident_bytes
     use sph_domain_input, only: misfit_axis
     implicit none
 
@@ -340,6 +341,63 @@ contains
         problem = verb // ' the ' // sci_text(n_fluid) // ' fluid particles into about ' // &
             sci_text(n_new) // ' (rank 0 makes their positions)' // problem
     end function remesh_capacity_problem
+
+    !> --check's estimate of a run's peak with &remesh (sph_stepper): rank 0 makes every new
+    !> position, so the remesh's peak is there, above the memory measured after the set-up
+    !> (process peaks on 1 rank, Release: the L/500 cylinder lattice, 220,420 particles,
+    !> 2D; the 3D Poiseuille channel at L/80, 198,144): a same-level remesh 1,460 and 3,720
+    !> bytes a fluid particle more, a coarsening 305 and 500; a refinement multiplies the
+    !> fluid by 2^dim and takes 290 and 860 bytes a new particle on top of the refined
+    !> state. The figures below round those up. Before, --check said nothing of it: 92 MB
+    !> for a refining run that peaked at 2.9 GB.
+    module procedure log_remesh_memory
+        real(wp), parameter :: SAME_BYTES(3) = [1500.0_wp, 1500.0_wp, 3800.0_wp], &
+            COARSEN_BYTES(3) = [320.0_wp, 320.0_wp, 520.0_wp], &
+            REFINE_BYTES(3) = [300.0_wp, 300.0_wp, 900.0_wp]
+        !> the libraries' share of a rank's memory (MPI, HDF5, the runtime), which does not
+        !> grow with the particles
+        real(wp), parameter :: BASE_BYTES = 27.0e6_wp
+        integer(i8) :: mine
+        real(wp) :: n_fluid, largest, rank0, after
+        integer :: dim, mode
+        character(len=320) :: line
+        mode = remesh_mode_code(sim%cfg%remesh%mode)
+        if (mode == REMESH_NONE) return
+        mine = peak_resident_bytes()
+        if (global_max(env, merge(1_i8, 0_i8, mine < 0)) > 0) return
+        dim = sim%cfg%domain%dimension
+        n_fluid = real(global_sum(env, int(count(sim%p%kind(1:sim%p%n_owned) == &
+            KIND_FLUID), i8)), wp)
+        largest = real(global_max(env, mine), wp)
+        rank0 = real(mine, wp)
+        call broadcast_value(rank0)
+        select case (mode)
+        case (REMESH_SAME)
+            write(line, '(a,f10.1,a)') "check: &remesh mode = 'same': rank 0 needs about ", &
+                (rank0 + SAME_BYTES(dim) * n_fluid) / 1.0e6_wp, ' MB while it remeshes ' // &
+                '(it makes every new position), and keeps most of it'
+        case (REMESH_COARSEN)
+            write(line, '(a,f10.1,a)') "check: &remesh mode = 'coarsen': rank 0 needs " // &
+                'about ', (rank0 + COARSEN_BYTES(dim) * n_fluid) / 1.0e6_wp, &
+                ' MB while it coarsens (it makes every new position)'
+        case default
+            ! the particles' share grows with them, the libraries' does not
+            after = BASE_BYTES + 2.0_wp**dim * max(largest - BASE_BYTES, 0.0_wp)
+            write(line, '(a,i0,a,f10.1,a,f10.1,a)') "check: &remesh mode = 'refine': each " // &
+                'refinement multiplies the fluid particles by ', 2**dim, ': after the ' // &
+                'first, about ', after / 1.0e6_wp, ' MB on the largest rank, and rank 0 ' // &
+                'about ', (BASE_BYTES + 2.0_wp**dim * max(rank0 - BASE_BYTES, 0.0_wp) + &
+                REFINE_BYTES(dim) * 2.0_wp**dim * n_fluid) / 1.0e6_wp, &
+                ' MB while it refines (it makes every new position)'
+        end select
+        call log_info(trim(line))
+    contains
+        !> rank 0's value on every rank
+        subroutine broadcast_value(x)
+            real(wp), intent(inout) :: x
+            x = global_max(env, merge(x, -huge(1.0_wp), env%rank == 0))
+        end subroutine broadcast_value
+    end procedure log_remesh_memory
 
     !> The log lines of one remesh (rank 0 prints); stages as simulation_t's remesh_stages.
     subroutine log_remesh(report, stages, mode, dx_old, dx_new, time, step, summation)
