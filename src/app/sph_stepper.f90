@@ -13,7 +13,7 @@ module sph_stepper
     use sph_config, only: config_t, config_parse
     use sph_mpi_env, only: mpi_env_t, global_sum, global_max, broadcast_text
     use sph_errors, only: fatal_collective
-    use sph_logger, only: log_info
+    use sph_logger, only: log_info, sci_text
     use sph_particles, only: particles_t, particles_gather, KIND_FLUID, KIND_VIRTUAL, &
         HALO_DENSITY, HALO_MOVE, HALO_TRANSPORT, HALO_GHOST
     use sph_physics, only: physics_t, DENSITY_SUMMATION, WALLS_MIRROR, WALLS_REPULSIVE_MIRROR, &
@@ -1003,10 +1003,12 @@ contains
         if (global_max(env, int(problem%code, i8)) == HEALTH_OK) return
         reporter = int(-global_max(env, int(merge(-env%rank, -huge(0), &
             problem%code /= HEALTH_OK), i8)))
-        write(where, '(a,i0,a,es12.5,a,i0,a,3es13.5,a)') ' at step ', sim%step, ', t = ', &
-            sim%time, ' s (particle ', problem%id, ' at', problem%x, ' m)'
-        if (problem%id == 0) write(where, '(a,i0,a,es12.5,a)') ' at step ', sim%step, &
-            ', t = ', sim%time, ' s'
+        write(where, '(a,i0,a,i0,a)') ' at step ', sim%step, ', t = ' // &
+            sci_text(sim%time, 5) // ' s (particle ', problem%id, ' at ' // &
+            sci_text(problem%x(1), 5) // ' ' // sci_text(problem%x(2), 5) // ' ' // &
+            sci_text(problem%x(3), 5) // ' m)'
+        if (problem%id == 0) write(where, '(a,i0,a)') ' at step ', sim%step, &
+            ', t = ' // sci_text(sim%time, 5) // ' s'
         message = problem%what // trim(where)
         call broadcast_text(env, message, reporter)
         path = snapshot_filename(trim(sim%cfg%output%output_dir), &

@@ -97,12 +97,30 @@ contains
         text = trim(buffer)
     end function int_text
 
-    !> A real in scientific notation with two decimals, without padding, for messages.
-    function sci_text(value) result(text)
+    !> A real in scientific notation with two decimals (or `decimals`), without padding, for
+    !> messages. Beyond 1e+-99 the exponent takes three digits and keeps its E (an es format
+    !> drops it there: a time of 6.56736-105 s in a health message).
+    function sci_text(value, decimals) result(text)
         real(real64), intent(in) :: value
+        integer, intent(in), optional :: decimals
         character(len=:), allocatable :: text
-        character(len=16) :: buffer
-        write(buffer, '(es10.2)') value
+        character(len=40) :: buffer, form
+        integer :: d
+        logical :: wide
+        d = 2
+        if (present(decimals)) d = decimals
+        ! (finiteness first: a comparison with NaN traps in a debug build)
+        wide = .false.
+        if (ieee_is_finite(value)) then
+            if (value /= 0.0_real64) wide = abs(value) >= 9.9e99_real64 .or. &
+                abs(value) < 1.0e-99_real64
+        end if
+        if (wide) then
+            write(form, '(a, i0, a, i0, a)') '(es', d + 9, '.', d, 'e3)'
+        else
+            write(form, '(a, i0, a, i0, a)') '(es', d + 8, '.', d, ')'
+        end if
+        write(buffer, form) value
         text = trim(adjustl(buffer))
     end function sci_text
 

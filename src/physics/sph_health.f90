@@ -12,6 +12,7 @@ module sph_health
     use sph_particles, only: particles_t, KIND_FLUID
     use sph_solids, only: solids_t, deepest_solid, solid_distance, SOLID_PLANE
     use sph_health_input, only: health_input_t
+    use sph_logger, only: sci_text
     implicit none
     private
     public :: health_problem_t, check_particles, check_timestep
@@ -86,7 +87,7 @@ contains
                 return
             end if
             if (abs(p%rho(i) - rho0) > limits%density_band * rho0) then
-                write(text, '(a,es12.5,a,f6.3,a)') 'fluid density ', p%rho(i), &
+                write(text, '(a,f6.3,a)') 'fluid density ' // sci_text(p%rho(i), 5) // &
                     ' kg/m^3 outside rho0 (1 +- ', limits%density_band, ')'
                 call found(HEALTH_DENSITY, trim(text) // ' (&health density_band)')
                 return
@@ -193,9 +194,9 @@ contains
         if (present(time)) then
             ! (a hundred steps to move the time by its last digit: hopeless all the same)
             if (dt < 100.0_wp * spacing(abs(time))) then
-                write(text, '(a,es10.3,a,es12.5,a)') 'the time step ', dt, &
-                    ' s no longer advances the time (t = ', time, ' s): the time-step ' // &
-                    'limits (&numerics fixed_dt, cfl; the sound speed) ask for too short a step'
+                text = 'the time step ' // sci_text(dt, 3) // ' s no longer advances the ' // &
+                    'time (t = ' // sci_text(time, 5) // ' s): the time-step limits ' // &
+                    '(&numerics fixed_dt, cfl; the sound speed) ask for too short a step'
                 problem%code = HEALTH_TIMESTEP
                 problem%what = trim(text)
                 return
@@ -203,8 +204,8 @@ contains
         end if
         if (limits%timestep_floor <= 0.0_wp) return
         if (dt >= limits%timestep_floor * first_dt) return
-        write(text, '(a,es10.3,a,es10.3,a)') 'the time step collapsed to ', dt, &
-            ' s from ', first_dt, ' s (&health timestep_floor)'
+        text = 'the time step collapsed to ' // sci_text(dt, 3) // ' s from ' // &
+            sci_text(first_dt, 3) // ' s (&health timestep_floor)'
         problem%code = HEALTH_TIMESTEP
         problem%what = trim(text)
     end subroutine check_timestep
@@ -222,9 +223,9 @@ contains
         if (ieee_is_finite(moved)) then
             if (moved <= box_length) return
         end if
-        write(text, '(a,es10.3,a,es10.3,a)') 'a particle moved ', moved, &
-            ' m in one step, farther than the box is long (', box_length, ' m): the time ' // &
-            'step is far too long for the forces (&numerics fixed_dt, cfl; the sound speed)'
+        text = 'a particle moved ' // sci_text(moved, 3) // ' m in one step, farther ' // &
+            'than the box is long (' // sci_text(box_length, 3) // ' m): the time step is ' // &
+            'far too long for the forces (&numerics fixed_dt, cfl; the sound speed)'
         problem%code = HEALTH_RUNAWAY
         problem%what = trim(text)
     end subroutine check_displacement
