@@ -4,7 +4,9 @@
 module sph_simulation
     use sph_kinds, only: wp, i8
     use sph_config, only: config_t
-    use sph_mpi_env, only: mpi_env_t
+    use sph_mpi_env, only: mpi_env_t, broadcast_text, agreed_status
+    use sph_filesystem, only: make_directories, delete_file, lock_for_process, LOCK_HELD, &
+        LOCK_BUSY, LOCK_UNSUPPORTED, LOCK_FAILED
     use sph_errors, only: fatal_collective, STATUS_OUTPUT_FAILED
     use sph_stepper, only: simulation_t, simulation_setup, simulation_restart, &
         simulation_step, simulation_rebalance, simulation_write_snapshot
@@ -42,9 +44,11 @@ contains
                 'the checkpoint is at step ' // int_text(sim%step) // ', at or past &run ' // &
                 'max_steps = ' // int_text(int(cfg%run%max_steps, i8)) // ' (steps count ' // &
                 'from the start of the run); raise max_steps to continue the run')
+            call lock_case_output(env, cfg)
             call keep_earlier_output(env, cfg, sim%step)
         else
             call simulation_setup(sim, env, cfg)
+            call lock_case_output(env, cfg)
             call keep_earlier_output(env, cfg, -1_i8)
             call simulation_write_snapshot(sim, env)
         end if
@@ -63,7 +67,55 @@ contains
         call timers_stop(sim%timers)
         call schedule_final_report(sched, sim, env)
         status = merge(75, 0, len(sched%stopped_by) > 0)
+        ! (a run that stopped on an error leaves the file, unlocked: the next run takes it)
+        if (env%rank == 0) call delete_file(trim(cfg%output%output_dir) // '/' // &
+            trim(cfg%run%case_name) // '.lock')
     end subroutine simulation_run
+
+    !> One run of a case at a time in its output folder (collective): rank 0 holds the lock
+    !> `<output_dir>/<case>.lock` for the life of the run (taken after the set-up, before the
+    !> first change to the folder, so that bad input leaves nothing there; removed at the
+    !> run's end). A second run of the same input
+    !> (a job submitted twice, a chain's link started while the one before still ran) set the
+    !> first run's files aside while it wrote them, and both then wrote over each other's
+    !> snapshots, .xdmf and forces file. The system drops the lock when the run ends, however
+    !> it ends, so none is left behind; where the file system has no locks (some parallel
+    !> file systems are mounted without them) the run goes on with a warning.
+    subroutine lock_case_output(env, cfg)
+        type(mpi_env_t), intent(in) :: env
+        type(config_t), intent(in) :: cfg
+        character(len=:), allocatable :: path, about, text
+        integer :: stat, dir_stat
+        path = trim(cfg%output%output_dir) // '/' // trim(cfg%run%case_name) // '.lock'
+        text = ''
+        stat = LOCK_HELD
+        if (env%rank == 0) then
+            call make_directories(trim(cfg%output%output_dir), dir_stat)
+            call lock_for_process(path, stat, about)
+            if (dir_stat /= 0) then
+                stat = LOCK_FAILED
+                about = 'the folder cannot be made'
+            end if
+            select case (stat)
+            case (LOCK_BUSY)
+                text = "another run of case '" // trim(cfg%run%case_name) // "' is " // &
+                    "writing to '" // trim(cfg%output%output_dir) // "' (" // about // &
+                    "; lock file '" // path // "'): two runs of a case in one folder " // &
+                    'would write over each other''s files. Wait for it to end, or give ' // &
+                    'this one another &output output_dir or &run case_name'
+            case (LOCK_FAILED)
+                text = "cannot make the lock file '" // path // "': " // about // &
+                    ' (&output output_dir)'
+            end select
+        end if
+        call broadcast_text(env, text)
+        stat = agreed_status(env, stat)
+        if (stat == LOCK_BUSY) call fatal_collective('output', text)
+        if (stat == LOCK_FAILED) call fatal_collective('output', text, STATUS_OUTPUT_FAILED)
+        if (stat == LOCK_UNSUPPORTED) call log_warn("output: the file system of '" // &
+            trim(cfg%output%output_dir) // "' has no file locks: a second run of case '" // &
+            trim(cfg%run%case_name) // "' into it at the same time would not be noticed")
+    end subroutine lock_case_output
 
     !> The files of an earlier run that this one could overwrite set aside before its first
     !> output (sph_earlier_output): after_step < 0 for a fresh run, else the restart's step.
@@ -77,8 +129,8 @@ contains
         call set_aside_earlier_output(env, trim(cfg%output%output_dir), &
             trim(cfg%run%case_name), after_step, moved, folder, stat, errmsg)
         if (stat /= 0) call fatal_collective('output', errmsg // '; nothing was ' // &
-            'overwritten: move the earlier files away or choose another &output output_dir', &
-            STATUS_OUTPUT_FAILED)
+            'overwritten: free space or move the earlier files away (or choose another ' // &
+            '&output output_dir), then run again', STATUS_OUTPUT_FAILED)
         if (moved == 0) return
         write(count_text, '(i0)') moved
         if (after_step < 0) then

@@ -5,10 +5,10 @@
 !> Split from sph_stepper so that each file holds one concern; the interfaces and their
 !> documentation are in sph_stepper.
 submodule (sph_stepper) sph_stepper_output
-    use sph_logger, only: fixed_text
+    use sph_logger, only: fixed_text, mb_text, int_text
     use sph_mpi_env, only: global_min
     use sph_particles, only: KIND_VIRTUAL
-    use sph_memory, only: peak_resident_bytes
+    use sph_memory, only: peak_resident_bytes, startup_memory_bytes
     use sph_reference, only: relative_l2_error, relative_l2_from_sums
     use sph_snapshot, only: write_snapshot
     use sph_checkpoint, only: write_checkpoint, checkpoint_filename
@@ -145,7 +145,7 @@ contains
         type(timestep_limits_t) :: lim
         integer :: level, max_level
         integer(i8) :: counts(3), pairs, mine
-        real(wp) :: bytes, limit_value, remaining
+        real(wp) :: bytes, base, limit_value, remaining
         character(len=256) :: line
         character(len=:), allocatable :: limiting
         max_level = int(global_max(env, int(maxval(sim%p%level(1:sim%p%n_owned), &
@@ -170,13 +170,18 @@ contains
         mine = peak_resident_bytes()
         if (global_max(env, merge(1_i8, 0_i8, mine < 0)) == 0) then
             bytes = global_sum(env, real(mine, wp))
-            write(line, '(a,f10.1,a,f10.1,a,f8.1,a,i0,a)') 'check: memory ', &
-                real(global_max(env, mine), wp) / 1.0e6_wp, ' MB on the largest rank, ', &
-                bytes / 1.0e6_wp, ' MB over all ranks (', bytes / max(1.0_wp, &
-                real(global_sum(env, int(sim%p%n_owned, i8)), wp)), ' bytes per particle, ', &
-                pairs, ' neighbour pairs), measured after the set-up and a first ' // &
-                'evaluation of the rates: a run without remeshing peaks up to about 10 % above it'
-            call log_info(trim(line))
+            ! per particle above the libraries' share (a rank's whatever its particles)
+            base = global_sum(env, real(max(startup_memory_bytes(), 0_i8), wp))
+            call log_info('check: memory ' // mb_text(real(global_max(env, mine), wp)) // &
+                ' on the largest rank, ' // mb_text(bytes) // ' over all ranks (' // &
+                mb_text(base) // ' of it the libraries'', then ' // int_text(nint((bytes - &
+                base) / max(1.0_wp, real(global_sum(env, int(sim%p%n_owned, i8)), wp)), &
+                i8)) // ' bytes a particle; ' // int_text(pairs) // ' neighbour pairs), ' // &
+                'measured after the set-up and a first evaluation of the rates: a run ' // &
+                'without remeshing peaks up to about 10 % above it')
+        else
+            call log_info('check: memory not measured (the system gives no peak resident ' // &
+                'set: /proc/self/status)')
         end if
         call log_remesh_memory(sim, env)
         lim = stable_timestep(sim, env)

@@ -4,7 +4,8 @@
 !> Split from sph_stepper so that each file holds one concern; the interfaces and their
 !> documentation are in sph_stepper.
 submodule (sph_stepper) sph_stepper_remesh
-    use sph_logger, only: log_warn_counted, log_warn, sci_text, fixed_text, logger_is_root
+    use sph_logger, only: log_warn_counted, log_warn, sci_text, fixed_text, logger_is_root, &
+        mb_text, int_text
     use sph_physics, only: physics_from_config
     use sph_walls, only: solids_from_config
     use sph_disorder_measure, only: nearest_distance_sums, disorder_from_sums
@@ -17,7 +18,7 @@ submodule (sph_stepper) sph_stepper_remesh
     use sph_rates, only: compute_summation_density
     use sph_particles, only: HALO_GHOST
     use sph_errors, only: STATUS_OUTPUT_FAILED
-    use sph_memory, only: peak_resident_bytes
+    use sph_memory, only: peak_resident_bytes, startup_memory_bytes
     use sph_domain_input, only: misfit_axis
     implicit none
 
@@ -351,16 +352,17 @@ contains
     !> state. The figures below round those up. Before, --check said nothing of it: 92 MB
     !> for a refining run that peaked at 2.9 GB.
     module procedure log_remesh_memory
+        ! (the capacity check's bounds, remesh_capacity_problem, are about 70 % of rank 0's
+        ! share on 2 ranks: a floor that refuses only what cannot fit; these are the whole
+        ! peak on 1 rank, what a user sizes a job by)
         real(wp), parameter :: SAME_BYTES(3) = [1500.0_wp, 1500.0_wp, 3800.0_wp], &
             COARSEN_BYTES(3) = [320.0_wp, 320.0_wp, 520.0_wp], &
             REFINE_BYTES(3) = [300.0_wp, 300.0_wp, 900.0_wp]
-        !> the libraries' share of a rank's memory (MPI, HDF5, the runtime), which does not
-        !> grow with the particles
+        !> the libraries' share of a rank when the start-up's was not measured
         real(wp), parameter :: BASE_BYTES = 27.0e6_wp
         integer(i8) :: mine
-        real(wp) :: n_fluid, largest, rank0, after
+        real(wp) :: n_fluid, largest, rank0, base, grown
         integer :: dim, mode
-        character(len=320) :: line
         mode = remesh_mode_code(sim%cfg%remesh%mode)
         if (mode == REMESH_NONE) return
         mine = peak_resident_bytes()
@@ -370,27 +372,29 @@ contains
             KIND_FLUID), i8)), wp)
         largest = real(global_max(env, mine), wp)
         rank0 = real(mine, wp)
+        base = real(startup_memory_bytes(), wp)
+        if (base <= 0.0_wp) base = BASE_BYTES
         call broadcast_value(rank0)
+        call broadcast_value(base)
         select case (mode)
         case (REMESH_SAME)
-            write(line, '(a,f10.1,a)') "check: &remesh mode = 'same': rank 0 needs about ", &
-                (rank0 + SAME_BYTES(dim) * n_fluid) / 1.0e6_wp, ' MB while it remeshes ' // &
-                '(it makes every new position), and keeps most of it'
+            call log_info("check: &remesh mode = 'same': rank 0 needs about " // &
+                mb_text(rank0 + SAME_BYTES(dim) * n_fluid) // ' while it remeshes (it ' // &
+                'makes every new position), and keeps most of it for the next remesh')
         case (REMESH_COARSEN)
-            write(line, '(a,f10.1,a)') "check: &remesh mode = 'coarsen': rank 0 needs " // &
-                'about ', (rank0 + COARSEN_BYTES(dim) * n_fluid) / 1.0e6_wp, &
-                ' MB while it coarsens (it makes every new position)'
+            call log_info("check: &remesh mode = 'coarsen': rank 0 needs about " // &
+                mb_text(rank0 + COARSEN_BYTES(dim) * n_fluid) // ' while it coarsens ' // &
+                '(it makes every new position)')
         case default
             ! the particles' share grows with them, the libraries' does not
-            after = BASE_BYTES + 2.0_wp**dim * max(largest - BASE_BYTES, 0.0_wp)
-            write(line, '(a,i0,a,f10.1,a,f10.1,a)') "check: &remesh mode = 'refine': each " // &
-                'refinement multiplies the fluid particles by ', 2**dim, ': after the ' // &
-                'first, about ', after / 1.0e6_wp, ' MB on the largest rank, and rank 0 ' // &
-                'about ', (BASE_BYTES + 2.0_wp**dim * max(rank0 - BASE_BYTES, 0.0_wp) + &
-                REFINE_BYTES(dim) * 2.0_wp**dim * n_fluid) / 1.0e6_wp, &
-                ' MB while it refines (it makes every new position)'
+            grown = base + 2.0_wp**dim * max(largest - base, 0.0_wp)
+            call log_info("check: &remesh mode = 'refine': each refinement multiplies " // &
+                'the fluid particles by ' // int_text(2_i8**dim) // ' and the memory ' // &
+                'with them: after the first, about ' // mb_text(grown) // ' on the ' // &
+                'largest rank, and rank 0 about ' // mb_text(base + 2.0_wp**dim * &
+                max(rank0 - base, 0.0_wp) + REFINE_BYTES(dim) * 2.0_wp**dim * n_fluid) // &
+                ' while it refines (it makes every new position)')
         end select
-        call log_info(trim(line))
     contains
         !> rank 0's value on every rank
         subroutine broadcast_value(x)

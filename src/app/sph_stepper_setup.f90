@@ -6,6 +6,7 @@ submodule (sph_stepper) sph_stepper_setup
     use sph_domain, only: domain_owner
     use sph_logger, only: log_warn, int_text, sci_text
     use sph_text_lines, only: next_line
+    use sph_filesystem, only: text_buffer_t
     use sph_snapshot, only: read_snapshot_header
     use sph_checkpoint, only: stored_spacing
     use sph_initial, only: lattice_mass_factor
@@ -287,13 +288,15 @@ contains
     !> The checkpoint's snapshot index (the .xdmf series) without the snapshots that are not
     !> in `folder`: a run continued into another output_dir (from a checkpoint in an
     !> archive) listed the earlier snapshots by bare name where they are not, and its series
-    !> did not open. They stay where they were written; the log says so. Rank 0 looks, every
-    !> rank takes its answer.
+    !> did not open. The .xdmf names its files without a folder, so it can only list what is
+    !> beside it; the log says how many it leaves out (also snapshots moved away to free
+    !> space). Rank 0 looks, every rank takes its answer.
     subroutine keep_listed_snapshots(sim, env, folder)
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
         character(len=*), intent(in) :: folder
-        character(len=:), allocatable :: kept, entry
+        type(text_buffer_t) :: kept
+        character(len=:), allocatable :: entry
         character(len=512) :: file_name
         character(len=32) :: number
         real(wp) :: time
@@ -301,26 +304,27 @@ contains
         integer :: start, ios, dropped
         logical :: exists
         if (env%rank == 0) then
-            kept = ''
             dropped = 0
             start = 1
             do while (start <= len(sim%snapshot_index))
                 call next_line(sim%snapshot_index, start, entry)
+                if (len_trim(entry) == 0) cycle
                 read(entry, *, iostat=ios) time, step, rows, file_name
-                if (ios /= 0) cycle
-                inquire(file=folder // '/' // trim(file_name), exist=exists)
+                exists = .false.
+                if (ios == 0) inquire(file=folder // '/' // trim(file_name), exist=exists)
                 if (exists) then
-                    kept = kept // entry // new_line('a')
+                    call kept%put(entry // new_line('a'))
                 else
                     dropped = dropped + 1
                 end if
             end do
-            sim%snapshot_index = kept
+            sim%snapshot_index = ''
+            if (kept%used > 0) sim%snapshot_index = kept%text(1:kept%used)
             if (dropped > 0) then
                 write(number, '(i0)') dropped
                 call log_warn('restart: ' // trim(number) // ' earlier snapshot(s) of the ' // &
-                    "checkpoint's series are not in '" // folder // "' (they stay where " // &
-                    "they were written); its .xdmf lists the snapshots that are there")
+                    "checkpoint's series are not in '" // folder // "' (continued into " // &
+                    'another folder, or moved away); its .xdmf lists the snapshots that are')
             end if
         end if
         call broadcast_text(env, sim%snapshot_index)

@@ -12,7 +12,7 @@ program sphremesh_main
     use sph_stepper, only: simulation_t, simulation_setup, simulation_check_report, &
         simulation_remesh_file, simulation_refine_regions_file
     use sph_signals, only: signals_install
-    use sph_memory, only: keep_freed_memory
+    use sph_memory, only: keep_freed_memory, note_startup_memory
     use mpi_f08, only: MPI_Finalize
     implicit none
 
@@ -26,6 +26,7 @@ program sphremesh_main
 
     call keep_freed_memory()
     call mpi_env_init_world(env)
+    call note_startup_memory()
     call logger_init(env%rank)
     ! a scheduler's SIGTERM/SIGUSR1 asks for a checkpoint and a clean stop (sph_schedule)
     call signals_install(stat)

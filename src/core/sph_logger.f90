@@ -7,7 +7,7 @@ module sph_logger
     private
     public :: VERBOSITY_QUIET, VERBOSITY_INFO, VERBOSITY_DEBUG
     public :: logger_init, log_info, log_debug, log_warn, log_warn_counted, log_warning_summary
-    public :: logger_is_root, int_text, sci_text, fixed_text
+    public :: logger_is_root, int_text, sci_text, fixed_text, mb_text
 
     integer, parameter :: VERBOSITY_QUIET = 0, VERBOSITY_INFO = 1, VERBOSITY_DEBUG = 2
     integer, parameter :: max_keys = 64
@@ -96,6 +96,17 @@ contains
         write(buffer, '(i0)') value
         text = trim(buffer)
     end function int_text
+
+    !> A memory size in megabytes (10^6 bytes, as the log's peak memory line), one decimal,
+    !> without padding: '206.4 MB'.
+    function mb_text(bytes) result(text)
+        real(real64), intent(in) :: bytes
+        character(len=:), allocatable :: text
+        character(len=32) :: buffer
+        write(buffer, '(f0.1)') bytes / 1.0e6_real64
+        if (buffer(1:1) == '.') buffer = '0' // buffer
+        text = trim(buffer) // ' MB'
+    end function mb_text
 
     !> A real in scientific notation with two decimals (or `decimals`), without padding, for
     !> messages. Beyond 1e+-99 the exponent takes three digits and keeps its E (an es format

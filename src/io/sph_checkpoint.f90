@@ -78,7 +78,7 @@ contains
             return
         end if
         call snapshot_begin(env, p, path, time, step, dimension, code_version, input_text, &
-            file, stat, errmsg, checkpoint_fields=.true.)
+            file, stat, errmsg, checkpoint_fields=.true., extra_bytes=len(snapshot_index))
         if (stat /= 0) return
         call h5_write_attribute(file, 'checkpoint_format_version', checkpoint_format_version)
         call h5_write_attribute(file, 'snapshot_index', snapshot_index)

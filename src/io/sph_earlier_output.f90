@@ -91,6 +91,8 @@ contains
         character(len=32) :: number
         !> the names moved so far, one per line (moved back when a later one cannot move)
         type(text_buffer_t) :: moved_names
+        !> whether this call made `folder` (only then may it go again)
+        logical :: made_folder
         integer :: start, k, list_stat, n
         integer(i8) :: step
         logical :: exists
@@ -100,6 +102,7 @@ contains
         folder = ''
         errmsg = ''
         result_text = ''
+        made_folder = .false.
         if (env%rank == 0) then
             call list_directory(directory, listing, list_stat)
             ! (a directory that cannot be listed does not exist yet: the output makes it)
@@ -164,7 +167,7 @@ contains
             if (failed == 0) then
                 if (moved > 0) errmsg = errmsg // ' (the files moved before it are back ' // &
                     'in place)'
-                call remove_empty_directory(folder)
+                if (made_folder) call remove_empty_directory(folder)
             else
                 write(number, '(i0)') failed
                 errmsg = errmsg // ' (' // trim(number) // " of the files moved before it " // &
@@ -179,7 +182,7 @@ contains
         !> with them.
         subroutine split_continued_files()
             character(len=:), allocatable :: text, kept, line, path, reason
-            integer :: start, comma, second, read_stat
+            integer :: start, comma, second, read_stat, header_commas
             integer(i8) :: row_step
             logical :: later
             path = directory // '/' // case_name // '_forces.csv'
@@ -198,9 +201,12 @@ contains
                         read(line(comma + 1:comma + second - 1), *, iostat=read_stat) row_step
                         if (read_stat /= 0) row_step = -1
                     end if
-                    ! (a row whose step cannot be read, cut short by a full disk or a crash,
-                    ! goes with the later rows: kept, it sat among them as a malformed row)
-                    if (row_step > after_step .or. (row_step < 0 .and. len(kept) > 0)) then
+                    ! (a row cut short by a full disk or a crash, its fields fewer than the
+                    ! header's, goes with the later rows: kept, it sat among them as a
+                    ! malformed row, its step perhaps a prefix of the real one)
+                    if (len(kept) == 0) header_commas = count_commas(line)
+                    if (row_step > after_step .or. (len(kept) > 0 .and. &
+                        count_commas(line) /= header_commas)) then
                         later = .true.
                     else
                         kept = kept // line // new_line('a')
@@ -232,6 +238,15 @@ contains
                 '.xdmf', stat)
             if (stat /= 0) call move_back()
         end subroutine split_continued_files
+
+        pure integer function count_commas(row)
+            character(len=*), intent(in) :: row
+            integer :: k
+            count_commas = 0
+            do k = 1, len(row)
+                if (row(k:k) == ',') count_commas = count_commas + 1
+            end do
+        end function count_commas
 
         !> The `.xdmf` text written to `path` for the set-aside folder: its snapshots of steps
         !> up to after_step stay in the folder above (the copy named them bare, and in the
@@ -299,8 +314,11 @@ contains
                 inquire(file=path, exist=exists)
                 if (exists) cycle
                 call make_directories(path, st)
+                made_folder = st == 0
                 return
             end do
+            ! (none free: no folder of this run's to name)
+            path = ''
         end subroutine new_folder
     end subroutine set_aside_earlier_output
 

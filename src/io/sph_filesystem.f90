@@ -10,6 +10,11 @@ module sph_filesystem
     public :: make_directories, rename_file, link_file, delete_file, list_directory
     public :: remove_empty_directory
     public :: write_text_file, write_text_file_whole, free_bytes, ends_with_new_line
+    public :: lock_for_process, LOCK_HELD, LOCK_BUSY, LOCK_UNSUPPORTED, LOCK_FAILED
+
+    !> lock_for_process's answers: held; held by another process; the file system has no
+    !> locks; the lock file cannot be made
+    integer, parameter :: LOCK_HELD = 0, LOCK_BUSY = 1, LOCK_UNSUPPORTED = 2, LOCK_FAILED = 3
     public :: text_buffer_t
     public :: MAX_FILE_PATH
 
@@ -60,6 +65,12 @@ module sph_filesystem
             integer(c_int), value :: append, capacity
             character(kind=c_char), intent(out) :: message(*)
         end function c_write_bytes
+        integer(c_int) function c_lock_file(path, holder, capacity) bind(C, name="sph_lock_file")
+            import :: c_char, c_int
+            character(kind=c_char), intent(in) :: path(*)
+            character(kind=c_char), intent(out) :: holder(*)
+            integer(c_int), value :: capacity
+        end function c_lock_file
         integer(c_long_long) function c_free_bytes(path) bind(C, name="sph_free_bytes")
             import :: c_char, c_long_long
             character(kind=c_char), intent(in) :: path(*)
@@ -175,6 +186,21 @@ contains
         end if
         if (stat /= 0) call delete_file(path // '.tmp')
     end subroutine write_text_file_whole
+
+    !> Take an advisory lock on the file `path` (made if missing) for the rest of the process:
+    !> the system releases it when the process ends, however it ends, so it is never left
+    !> stale. stat: LOCK_HELD; LOCK_BUSY (another process holds it: `about` is the file's
+    !> note of who, where and since when); LOCK_UNSUPPORTED (the file system has no locks);
+    !> LOCK_FAILED (`about` is the reason).
+    subroutine lock_for_process(path, stat, about)
+        character(len=*), intent(in) :: path
+        integer, intent(out) :: stat
+        character(len=:), allocatable, intent(out) :: about
+        character(kind=c_char, len=300) :: holder
+        holder = ''
+        stat = int(c_lock_file(path // c_null_char, holder, len(holder, c_int)))
+        about = trim(holder)
+    end subroutine lock_for_process
 
     !> Whether the file `path` is empty or ends with a new line (a missing or unreadable
     !> file counts as ending with one).

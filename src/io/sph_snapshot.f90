@@ -99,7 +99,7 @@ contains
     !> datasets; the caller may add more (checkpoints do) before snapshot_end. On failure
     !> (stat /= 0, the same on every rank) no file is left open.
     subroutine snapshot_begin(env, p, path, time, step, dimension, code_version, input_text, &
-                              file, stat, errmsg, with_virtual, checkpoint_fields)
+                              file, stat, errmsg, with_virtual, checkpoint_fields, extra_bytes)
         type(mpi_env_t), intent(in) :: env
         type(particles_t), intent(inout) :: p
         character(len=*), intent(in) :: path, code_version, input_text
@@ -112,6 +112,8 @@ contains
         logical, intent(in), optional :: with_virtual
         !> the caller adds the checkpoint fields (write_checkpoint): room for them too
         logical, intent(in), optional :: checkpoint_fields
+        !> bytes of text the caller adds (a checkpoint's snapshot index)
+        integer, intent(in), optional :: extra_bytes
         integer :: n, i, dir_end, my_stat
         logical :: virtual_rows
         integer(i8) :: offset, total
@@ -144,8 +146,13 @@ contains
                 rows(n) = i
             end if
         end do
-        call check_room(path(1:max(dir_end - 1, 0)), global_sum(env, int(n, i8)), &
-            len(input_text), stat, errmsg, checkpoint_fields)
+        if (dir_end == 1) then
+            call check_room('/', global_sum(env, int(n, i8)), len(input_text), stat, errmsg, &
+                checkpoint_fields)
+        else
+            call check_room(path(1:max(dir_end - 1, 0)), global_sum(env, int(n, i8)), &
+                len(input_text), stat, errmsg, checkpoint_fields)
+        end if
         if (stat /= 0) return
 
         call h5_create(env, path // '.tmp', file, my_stat, errmsg)
@@ -209,6 +216,7 @@ contains
             ! (+1: the writing rank of each row)
             need = rows * int(8 * (n_real + n_int + 1), i8)
             need = need + need / 50 + int(text_bytes, i8) + ROOM_MARGIN
+            if (present(extra_bytes)) need = need + int(extra_bytes, i8)
             free = -1
             if (env%rank == 0) then
                 if (len(folder) > 0) then

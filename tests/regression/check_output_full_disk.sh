@@ -6,7 +6,8 @@
 # The short Poiseuille case runs to its end; then, continued with a longer t_end:
 #  - the forces file on a full disk: status 74, the reason named, the rows before whole;
 #  - the .xdmf's temporary name on a full disk: status 74, the earlier .xdmf as it was;
-#  - a forces row cut short by an older run: the continued rows start on a line of their own;
+#  - a forces row cut short by an older run (or cut in its step field): set aside with the
+#    file, the continued rows whole;
 #  - into another output_dir: its .xdmf lists only the snapshots that are there (before, it
 #    named the earlier snapshots, which stayed in the first folder, and did not open).
 # usage: check_output_full_disk.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM INPUT.nml WORKDIR PYTHON
@@ -22,6 +23,7 @@ sed -e "s#^ *output_dir = .*#    output_dir = 'output'#" \
     -e 's/^ *t_end = .*/    t_end = 0.004/' \
     -e 's/^ *output_interval = .*/    output_interval = 0.002/' \
     -e 's/^ *output_times = .*//' "$input" > case.nml
+printf "&restart\n    checkpoint_interval_steps = 16\n    checkpoints_kept = 10\n/\n" >> case.nml
 run case.nml > first.log 2>&1 || fail "the first run failed:" first.log
 case=$(sed -n "s/^ *case_name = '\(.*\)'.*/\1/p" case.nml)
 sed -e 's/^ *t_end = .*/    t_end = 0.006/' case.nml > longer.nml
@@ -51,13 +53,30 @@ cmp -s "output/${case}.xdmf" "kept/${case}.xdmf" || fail "the earlier .xdmf was 
 "$python" "$checker" "output/${case}.xdmf" > check_1.log 2>&1 || \
     fail "the earlier .xdmf does not open its snapshots:" check_1.log
 
-# a forces row cut short (a crash of an older version): new rows on lines of their own
+# a forces row cut short (a crash of an older version): the continued run sets the file
+# aside whole and goes on with its whole rows (before, the first new row was appended onto
+# the cut one)
 rm -rf output && cp -r kept output
 head -c -40 "kept/${case}_forces.csv" > "output/${case}_forces.csv"
+cp "output/${case}_forces.csv" cut.csv
 run longer.nml --continue > cut.log 2>&1 || fail "the continued run failed:" cut.log
-awk -F, -v cut="$(wc -l < "kept/${case}_forces.csv")" \
-    'NR != cut && NF != 15 { print "line " NR ": " NF " fields"; bad = 1 } END { exit bad }' \
+awk -F, 'NF != 15 { print "line " NR ": " NF " fields"; bad = 1 } END { exit bad }' \
     "output/${case}_forces.csv" > fields.log || fail "rows are not whole:" fields.log
+cmp -s cut.csv "output/${case}_earlier_1/${case}_forces.csv" || \
+    fail "the forces file with the cut row was not set aside whole"
+# cut inside a row's step (at the restart's own step and after it): a restart from the older
+# checkpoint sets it aside with the later rows (before, it kept it among the rows it kept)
+rm -rf output && cp -r kept output
+older=$(ls kept/"${case}"_checkpoint_*.h5 | head -1)
+older_step=$(basename "$older" .h5 | sed 's/.*_0*\([0-9]\)/\1/')
+awk -F, -v s="$older_step" 'NR == 1 || $2 + 0 <= s' "kept/${case}_forces.csv" \
+    > "output/${case}_forces.csv"
+awk -F, -v s="$older_step" 'NR > 1 && $2 + 0 > s { print $1 "," substr($2, 1, 1); exit }' \
+    "kept/${case}_forces.csv" | tr -d '\n' >> "output/${case}_forces.csv"
+run longer.nml --restart "$older" > split.log 2>&1 || fail "the restart at step $older_step \
+failed:" split.log
+awk -F, 'NR > 1 && NF != 15 { print "line " NR ": " NF " fields"; bad = 1 } END { exit bad }' \
+    "output/${case}_forces.csv" > split_fields.log || fail "a cut row was kept:" split_fields.log
 
 # continued into another folder: its .xdmf opens
 sed -e "s#^ *output_dir = .*#    output_dir = 'other'#" longer.nml > other.nml

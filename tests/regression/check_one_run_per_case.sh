@@ -1,0 +1,71 @@
+#!/usr/bin/env bash
+# Regression: one run of a case at a time in an output folder. While another process holds
+# the lock output/<case>.lock (as a running sphremesh does), a run of the case is refused
+# with one message naming the holder, status 1, and the folder's files untouched (before, the
+# second run set the first one's files aside while it wrote them, and both then wrote over
+# each other's snapshots). A run killed with SIGKILL leaves no lock behind; a finished run
+# removes its lock file; another case in the same folder is not held up.
+# usage: check_one_run_per_case.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM INPUT.nml WORKDIR PYTHON
+set -u
+mpiexec=$1 np_flag=$2 np=$3 extra=$4 program=$5 input=$6 work=$7 python=$8
+run() { "$mpiexec" "$np_flag" "$np" $extra "$program" "$@"; }
+fail() { echo "$1"; [ -n "${2:-}" ] && cat "$2"; exit 1; }
+rm -rf "$work" && mkdir -p "$work" && cd "$work" || exit 1
+
+sed -e "s#^ *output_dir = .*#    output_dir = 'output'#" \
+    -e 's/^ *t_end = .*/    t_end = 0.004/' \
+    -e 's/^ *output_interval = .*/    output_interval = 0.002/' \
+    -e 's/^ *output_times = .*//' "$input" > case.nml
+case=$(sed -n "s/^ *case_name = '\(.*\)'.*/\1/p" case.nml)
+run case.nml > first.log 2>&1 || fail "the first run failed:" first.log
+[ -e "output/$case.lock" ] && fail "the finished run left its lock file"
+cp -r output kept
+
+# another process holds the lock (an fcntl lock, as sphremesh takes it)
+"$python" - "output/$case.lock" > holder.log 2>&1 <<'EOF' &
+import fcntl, sys, time
+f = open(sys.argv[1], "a+")
+fcntl.lockf(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+f.truncate(0); f.write("host test, process 1, job none, since now\n"); f.flush()
+print("held", flush=True)
+time.sleep(60)
+EOF
+holder=$!
+for k in $(seq 50); do grep -q held holder.log && break; sleep 0.1; done
+grep -q held holder.log || fail "the test could not take the lock:" holder.log
+run case.nml > second.log 2>&1
+status=$?
+kill $holder 2>/dev/null; wait $holder 2>/dev/null
+[ $status -eq 1 ] || fail "a second run while the lock is held: status $status, not 1:" second.log
+grep -q "another run of case '$case' is writing to 'output' (host test, process 1" second.log \
+    || fail "the message does not name the holder:" second.log
+[ "$(grep -c '^sphremesh: error' second.log)" = 1 ] || fail "not one message:" second.log
+[ -e output/"${case}"_earlier_1 ] && fail "the refused run set the earlier files aside"
+for f in kept/*; do
+    cmp -s "$f" "output/$(basename "$f")" || fail "the refused run changed $(basename "$f")"
+done
+
+# another case in the same folder runs while this one's lock is held
+"$python" - "output/$case.lock" > holder2.log 2>&1 <<'EOF' &
+import fcntl, sys, time
+f = open(sys.argv[1], "a+")
+fcntl.lockf(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+print("held", flush=True)
+time.sleep(60)
+EOF
+holder=$!
+for k in $(seq 50); do grep -q held holder2.log && break; sleep 0.1; done
+sed -e "s/^ *case_name = .*/    case_name = 'other'/" case.nml > other.nml
+run other.nml > other.log 2>&1
+status=$?
+kill $holder 2>/dev/null; wait $holder 2>/dev/null
+[ $status -eq 0 ] || fail "another case in the folder was held up (status $status):" other.log
+
+# a run killed outright leaves no lock: the next one goes on
+sed -e 's/^ *t_end = .*/    t_end = 10.0/' case.nml > long.nml
+run long.nml --continue > killed.log 2>&1 &
+launcher=$!
+for k in $(seq 100); do grep -q "^ *step " killed.log && break; sleep 0.1; done
+pkill -KILL -f "sphremesh long.nml" ; wait $launcher 2>/dev/null
+run case.nml > after_kill.log 2>&1 || fail "the run after a killed one failed:" after_kill.log
+echo "one run of a case at a time in its folder"
