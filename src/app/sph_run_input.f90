@@ -44,6 +44,13 @@ contains
             'abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-.') /= 0) &
             call grp%error('case_name', &
                 'letters, digits, "_", "-" and "." only (used in file names)')
+        ! (the snapshots of a case 'p_checkpoint' are named as the checkpoints of a case 'p',
+        ! those of 'p_failure' as its failure snapshots: a run of 'p' in the folder took them
+        ! for its own and set them aside)
+        if (ends_with(trim(run%case_name), '_checkpoint') .or. &
+            ends_with(trim(run%case_name), '_failure')) call grp%error('case_name', &
+            'must not end in "_checkpoint" or "_failure": its snapshots would be named as ' // &
+            'the checkpoints or failure snapshots of another case')
         ! (at most 1e20 s: counts of steps and snapshots up to it stay finite)
         call grp%get_real('t_end', run%t_end, 1.0_wp, min_exclusive=0.0_wp, max=1.0e20_wp, &
             unit='s', doc='end time')
@@ -61,6 +68,12 @@ contains
     !> &output; the listed times must lie in [0, t_end] and increase. Entries past t_end (a
     !> shortened run) are skipped with a note (the group's), not refused. The output folder must
     !> be creatable: its nearest existing ancestor must be a directory (nothing is made here).
+    pure logical function ends_with(text, tail)
+        character(len=*), intent(in) :: text, tail
+        ends_with = .false.
+        if (len(text) >= len(tail)) ends_with = text(len(text) - len(tail) + 1:) == tail
+    end function ends_with
+
     subroutine read_output_input(grp, t_end, case_name, out)
         type(nml_group_t), intent(inout) :: grp
         real(wp), intent(in) :: t_end

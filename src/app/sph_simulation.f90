@@ -5,9 +5,9 @@ module sph_simulation
     use sph_kinds, only: wp, i8
     use sph_config, only: config_t
     use sph_mpi_env, only: mpi_env_t, broadcast_text, agreed_status
-    use sph_filesystem, only: make_directories, delete_file, lock_for_process, LOCK_HELD, &
-        LOCK_BUSY, LOCK_UNSUPPORTED, LOCK_FAILED
-    use sph_errors, only: fatal_collective, STATUS_OUTPUT_FAILED
+    use sph_filesystem, only: make_directories, lock_for_process, LOCK_HELD, LOCK_BUSY, &
+        LOCK_UNSUPPORTED, LOCK_FAILED
+    use sph_errors, only: fatal_collective, remove_at_exit, STATUS_OUTPUT_FAILED
     use sph_stepper, only: simulation_t, simulation_setup, simulation_restart, &
         simulation_step, simulation_rebalance, simulation_write_snapshot
     use sph_schedule, only: schedule_t, schedule_init, schedule_dt_cap, schedule_after_step, &
@@ -34,6 +34,9 @@ contains
         integer :: previous
 
         if (len(restart_from) > 0) then
+            ! (before the checkpoint is read: a run of the case that is writing could remove
+            ! it meanwhile, and the refusal named the checkpoint instead of that run)
+            call lock_case_output(env, cfg)
             call simulation_restart(sim, env, cfg, restart_from)
             if (sim%time >= cfg%run%t_end * (1.0_wp - 1.0e-12_wp)) &
                 call fatal_collective('restart', &
@@ -44,7 +47,6 @@ contains
                 'the checkpoint is at step ' // int_text(sim%step) // ', at or past &run ' // &
                 'max_steps = ' // int_text(int(cfg%run%max_steps, i8)) // ' (steps count ' // &
                 'from the start of the run); raise max_steps to continue the run')
-            call lock_case_output(env, cfg)
             call keep_earlier_output(env, cfg, sim%step)
         else
             call simulation_setup(sim, env, cfg)
@@ -67,15 +69,12 @@ contains
         call timers_stop(sim%timers)
         call schedule_final_report(sched, sim, env)
         status = merge(75, 0, len(sched%stopped_by) > 0)
-        ! (a run that stopped on an error leaves the file, unlocked: the next run takes it)
-        if (env%rank == 0) call delete_file(trim(cfg%output%output_dir) // '/' // &
-            trim(cfg%run%case_name) // '.lock')
     end subroutine simulation_run
 
     !> One run of a case at a time in its output folder (collective): rank 0 holds the lock
-    !> `<output_dir>/<case>.lock` for the life of the run (taken after the set-up, before the
-    !> first change to the folder, so that bad input leaves nothing there; removed at the
-    !> run's end). A second run of the same input
+    !> `<output_dir>/<case>.lock` for the life of the run (taken after a fresh run's set-up,
+    !> before its first change to the folder, so that bad input leaves nothing there; before a
+    !> restart reads its checkpoint; removed when the process leaves). A second run of the same input
     !> (a job submitted twice, a chain's link started while the one before still ran) set the
     !> first run's files aside while it wrote them, and both then wrote over each other's
     !> snapshots, .xdmf and forces file. The system drops the lock when the run ends, however
@@ -96,6 +95,7 @@ contains
                 stat = LOCK_FAILED
                 about = 'the folder cannot be made'
             end if
+            if (stat == LOCK_BUSY .and. len(about) == 0) about = 'which has not said who it is'
             select case (stat)
             case (LOCK_BUSY)
                 text = "another run of case '" // trim(cfg%run%case_name) // "' is " // &
@@ -110,6 +110,8 @@ contains
         end if
         call broadcast_text(env, text)
         stat = agreed_status(env, stat)
+        ! (the lock file goes when the run leaves, however it leaves but killed)
+        if (env%rank == 0 .and. stat == LOCK_HELD) call remove_at_exit(path)
         if (stat == LOCK_BUSY) call fatal_collective('output', text)
         if (stat == LOCK_FAILED) call fatal_collective('output', text, STATUS_OUTPUT_FAILED)
         if (stat == LOCK_UNSUPPORTED) call log_warn("output: the file system of '" // &

@@ -34,7 +34,7 @@ module sph_stepper
     use sph_particle_file, only: read_initial_particles
     use sph_global_ids, only: id_order, global_max_id
     use sph_reference, only: reference_t
-    use sph_snapshot, only: snapshot_filename, snapshot_begin, snapshot_end
+    use sph_snapshot, only: snapshot_filename, snapshot_begin, snapshot_end, SNAPSHOT_NOT_CLOSED
     use sph_hdf5, only: h5_file_t, h5_write_attribute
     use sph_health, only: health_problem_t, check_particles, check_timestep, HEALTH_OK, &
         HEALTH_NONFINITE, check_displacement, IN_SOLID_SLACK
@@ -1024,7 +1024,8 @@ contains
         else
             message = message // '; the failure snapshot could not be written: ' // errmsg
         end if
-        call fatal_collective('health check', message, status=3)
+        call fatal_collective('health check', message, status=3, &
+            abort=stat == SNAPSHOT_NOT_CLOSED)
     end subroutine check_health
 
     !> Density is integrated (continuity) unless it is summed from the neighbours.

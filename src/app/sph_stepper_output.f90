@@ -10,7 +10,7 @@ submodule (sph_stepper) sph_stepper_output
     use sph_particles, only: KIND_VIRTUAL
     use sph_memory, only: peak_resident_bytes, startup_memory_bytes
     use sph_reference, only: relative_l2_error, relative_l2_from_sums
-    use sph_snapshot, only: write_snapshot
+    use sph_snapshot, only: write_snapshot, SNAPSHOT_NOT_CLOSED
     use sph_checkpoint, only: write_checkpoint, checkpoint_filename
     use sph_xdmf, only: xdmf_index_entry, write_xdmf
     use sph_filesystem, only: delete_file, make_directories, write_text_file, &
@@ -42,7 +42,7 @@ contains
         ! (stat 2: not the folder's fault)
         if (stat == 2) call fatal_collective('checkpoint', errmsg)
         if (stat /= 0) call fatal_collective('checkpoint', errmsg // ' (&output output_dir)', &
-            STATUS_OUTPUT_FAILED)
+            STATUS_OUTPUT_FAILED, abort=stat == SNAPSHOT_NOT_CLOSED)
         if (all(sim%checkpoints /= path)) &
             sim%checkpoints = [character(len=512) :: sim%checkpoints, path]
         do while (size(sim%checkpoints) > sim%cfg%restart%checkpoints_kept)
@@ -308,7 +308,7 @@ contains
             code_version, sim%input_text, stat, errmsg, with_virtual=writes_virtual(sim))
         ! (the folder is the user's key: named, since the message gives the path only)
         if (stat /= 0) call fatal_collective('output', errmsg // ' (&output output_dir)', &
-            STATUS_OUTPUT_FAILED)
+            STATUS_OUTPUT_FAILED, abort=stat == SNAPSHOT_NOT_CLOSED)
         rows = global_sum(env, int(count(sim%p%kind(1:sim%p%n_owned) /= KIND_VIRTUAL .or. &
             writes_virtual(sim)), i8))
         k = index(path, '/', back=.true.)

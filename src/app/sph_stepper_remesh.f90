@@ -9,7 +9,7 @@ submodule (sph_stepper) sph_stepper_remesh
     use sph_physics, only: physics_from_config
     use sph_walls, only: solids_from_config
     use sph_disorder_measure, only: nearest_distance_sums, disorder_from_sums
-    use sph_snapshot, only: read_snapshot_header, read_snapshot_rows
+    use sph_snapshot, only: read_snapshot_header, read_snapshot_rows, SNAPSHOT_NOT_CLOSED
     use sph_checkpoint, only: write_checkpoint, stored_spacing
     use sph_read_checks, only: check_read_particles, check_fluid_outside_solids
     use sph_remesh_driver, only: remesh_report_t, remesh_fluid, remesh_mode_code, &
@@ -551,7 +551,8 @@ contains
             sim%cfg%domain%dimension, code_version, input_text, '', stat, errmsg, &
             sim%cfg%domain%dx)
         if (stat == 2) call fatal_collective('remesh', errmsg)
-        if (stat /= 0) call fatal_collective('remesh', errmsg, STATUS_OUTPUT_FAILED)
+        if (stat /= 0) call fatal_collective('remesh', errmsg, STATUS_OUTPUT_FAILED, &
+            abort=stat == SNAPSHOT_NOT_CLOSED)
         write(number, '(es15.8)') sim%cfg%domain%dx
         ! (not where no run can continue it: the warning before the work said so, and the
         ! hint sent users to a restart that every input refuses)
@@ -607,7 +608,8 @@ contains
             sim%cfg%domain%dimension, code_version, sim%input_text, sim%snapshot_index, stat, &
             errmsg, sim%cfg%domain%dx, balance)
         if (stat == 2) call fatal_collective('remesh', errmsg)
-        if (stat /= 0) call fatal_collective('remesh', errmsg, STATUS_OUTPUT_FAILED)
+        if (stat /= 0) call fatal_collective('remesh', errmsg, STATUS_OUTPUT_FAILED, &
+            abort=stat == SNAPSHOT_NOT_CLOSED)
         call log_info('remesh: checkpoint ' // out_path // ' written; continue with ' // &
             'sphremesh ' // regions_path // ' --restart ' // out_path)
     end procedure simulation_refine_regions_file

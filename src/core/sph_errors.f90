@@ -5,11 +5,12 @@
 !> No traceback is printed: these are diagnosed errors, not crashes.
 module sph_errors
     use, intrinsic :: iso_fortran_env, only: error_unit
-    use, intrinsic :: iso_c_binding, only: c_int
+    use, intrinsic :: iso_c_binding, only: c_int, c_char, c_null_char
     use mpi_f08
     implicit none
     private
     public :: fatal_collective, fatal_abort, check_mpi, set_error_comm, exit_process
+    public :: remove_at_exit
 
     !> Exit status of a run stopped because an output file could not be written (a full or
     !> read-only file system): the files written before are whole and a restart continues
@@ -19,12 +20,18 @@ module sph_errors
 
     type(MPI_Comm), save :: error_comm  !< set once by sph_mpi_env; MPI_COMM_SELF until then
     logical, save :: have_comm = .false.
+    !> a file this process removes when it leaves (remove_at_exit), '' = none
+    character(len=:), allocatable, save :: exit_removal
 
     interface
         subroutine c_exit(status) bind(C, name="exit")
             import :: c_int
             integer(c_int), value :: status
         end subroutine c_exit
+        integer(c_int) function c_unlink(path) bind(C, name="unlink")
+            import :: c_int, c_char
+            character(kind=c_char), intent(in) :: path(*)
+        end function c_unlink
     end interface
 
 contains
@@ -39,10 +46,14 @@ contains
     !> Collective stop: same condition on every rank; one message from rank 0; exit status 1
     !> (bad input, set-up), or `status` (3: the run became unhealthy, see sph_health;
     !> STATUS_OUTPUT_FAILED).
-    subroutine fatal_collective(where, message, status)
+    !> abort: leave through MPI_Abort instead of MPI_Finalize, after the one message (an
+    !> HDF5 file whose closing failed is still open in the library, and its clean-up at
+    !> MPI_Finalize crashed every rank with SIGSEGV).
+    subroutine fatal_collective(where, message, status, abort)
         character(len=*), intent(in) :: where, message
         integer, intent(in), optional :: status
-        integer :: rank, ierr
+        logical, intent(in), optional :: abort
+        integer :: rank, ierr, code
         logical :: initialized, finalized
 
         rank = 0
@@ -55,21 +66,29 @@ contains
             write(error_unit, '(a)') 'sphremesh: error in ' // trim(where) // ': ' // trim(message)
             flush(error_unit)
         end if
+        code = 1
+        if (present(status)) code = status
         if (initialized .and. .not. finalized) then
             if (have_comm) call MPI_Barrier(error_comm, ierr)
+            if (present(abort)) then
+                if (abort .and. have_comm) then
+                    if (allocated(exit_removal)) then
+                        if (len(exit_removal) > 0) ierr = c_unlink(exit_removal // c_null_char)
+                    end if
+                    call MPI_Abort(error_comm, code, ierr)
+                end if
+            end if
             call MPI_Finalize(ierr)
         end if
-        if (present(status)) then
-            call exit_process(status)
-        else
-            call exit_process(1)
-        end if
+        call exit_process(code)
     end subroutine fatal_collective
 
     !> Abort from a single rank: prints the rank and takes the whole job down.
-    subroutine fatal_abort(where, message)
+    subroutine fatal_abort(where, message, status)
         character(len=*), intent(in) :: where, message
-        integer :: rank, ierr
+        !> the exit status (default 1; STATUS_OUTPUT_FAILED for a write that failed)
+        integer, intent(in), optional :: status
+        integer :: rank, ierr, code
         logical :: initialized, finalized
         character(len=16) :: rank_text
 
@@ -87,14 +106,20 @@ contains
         write(error_unit, '(a)') 'sphremesh: rank ' // trim(rank_text) // ': error in ' // &
             trim(where) // ': ' // trim(message)
         flush(error_unit)
+        code = 1
+        if (present(status)) code = status
+        ! (MPI_Abort does not come back to exit_process)
+        if (allocated(exit_removal)) then
+            if (len(exit_removal) > 0) ierr = c_unlink(exit_removal // c_null_char)
+        end if
         if (initialized .and. .not. finalized) then
             if (have_comm) then
-                call MPI_Abort(error_comm, 1, ierr)
+                call MPI_Abort(error_comm, code, ierr)
             else
-                call MPI_Abort(MPI_COMM_SELF, 1, ierr)
+                call MPI_Abort(MPI_COMM_SELF, code, ierr)
             end if
         end if
-        call exit_process(1)
+        call exit_process(code)
     end subroutine fatal_abort
 
     !> Every MPI return code goes through here.
@@ -108,9 +133,20 @@ contains
         call fatal_abort(where, 'MPI error: ' // text(1:length))
     end subroutine check_mpi
 
-    !> Leave the process with a status and no STOP banner.
+    !> Have exit_process remove `path` (a run's lock file, which the run holds to its end
+    !> whatever way it leaves: done, stopped, or on an error).
+    subroutine remove_at_exit(path)
+        character(len=*), intent(in) :: path
+        exit_removal = path
+    end subroutine remove_at_exit
+
+    !> Leave the process with a status and no STOP banner (removing the remove_at_exit file).
     subroutine exit_process(status)
         integer, intent(in) :: status
+        integer(c_int) :: rc
+        if (allocated(exit_removal)) then
+            if (len(exit_removal) > 0) rc = c_unlink(exit_removal // c_null_char)
+        end if
         flush(error_unit)
         call c_exit(int(status, c_int))
     end subroutine exit_process

@@ -97,15 +97,21 @@ contains
         text = trim(buffer)
     end function int_text
 
-    !> A memory size in megabytes (10^6 bytes, as the log's peak memory line), one decimal,
-    !> without padding: '206.4 MB'.
+    !> A memory or file size in megabytes (10^6 bytes, as the log's peak memory line), one
+    !> decimal, without padding: '206.4 MB'; below 1 MB in kilobytes: '45.1 kB'.
     function mb_text(bytes) result(text)
         real(real64), intent(in) :: bytes
         character(len=:), allocatable :: text
         character(len=32) :: buffer
-        write(buffer, '(f0.1)') bytes / 1.0e6_real64
+        if (abs(bytes) < 1.0e6_real64) then
+            write(buffer, '(f0.1)') bytes / 1.0e3_real64
+            text = ' kB'
+        else
+            write(buffer, '(f0.1)') bytes / 1.0e6_real64
+            text = ' MB'
+        end if
         if (buffer(1:1) == '.') buffer = '0' // buffer
-        text = trim(buffer) // ' MB'
+        text = trim(buffer) // text
     end function mb_text
 
     !> A real in scientific notation with two decimals (or `decimals`), without padding, for

@@ -34,7 +34,7 @@ int sph_write_bytes(const char *path, const char *data, long long n, int append,
     int fd, err = 0, known_size = 0;
     off_t before = 0;
     struct stat status;
-    fd = open(path, O_WRONLY | O_CREAT | (append ? O_APPEND : O_TRUNC), 0644);
+    fd = open(path, O_WRONLY | O_CREAT | (append ? O_APPEND : O_TRUNC), 0666);
     if (fd < 0) {
         err = errno;
         copy_message(err, message, capacity);
@@ -96,7 +96,8 @@ long long sph_free_bytes(const char *path)
  * lock. */
 int sph_lock_file(const char *path, char *holder, int capacity)
 {
-    int fd, err, k, n;
+    int fd, err, k, n, attempt;
+    struct stat held, named;
     ssize_t got;
     struct flock lock;
     char text[512], host[256];
@@ -105,25 +106,49 @@ int sph_lock_file(const char *path, char *holder, int capacity)
     struct tm utc;
     for (k = 0; k < capacity; ++k)
         holder[k] = ' ';
-    fd = open(path, O_RDWR | O_CREAT, 0644);
-    if (fd < 0) {
-        copy_message(errno, holder, capacity);
-        return 3;
-    }
-    memset(&lock, 0, sizeof lock);
-    lock.l_type = F_WRLCK;
-    lock.l_whence = SEEK_SET;
-    if (fcntl(fd, F_SETLK, &lock) != 0) {
-        err = errno;
-        if (err == EACCES || err == EAGAIN) {
-            got = pread(fd, text, sizeof text - 1, 0);
-            for (k = 0; got > 0 && k < got && k < capacity; ++k)
-                holder[k] = text[k] == '\n' ? ' ' : text[k];
-            close(fd);
-            return 1;
+    for (attempt = 0;; ++attempt) {
+        /* (the mode as for every output file: the umask decides, so a group's folder
+         * stays usable by the group) */
+        /* (not through a symbolic link: the note would replace the contents of whatever
+         * file it leads to) */
+        fd = open(path, O_RDWR | O_CREAT | O_NOFOLLOW, 0666);
+        if (fd < 0) {
+            if (errno == ELOOP) {
+                const char *text_link = "it is a symbolic link, not a file: remove it";
+                for (k = 0; k < capacity && text_link[k] != '\0'; ++k)
+                    holder[k] = text_link[k];
+            } else {
+                copy_message(errno, holder, capacity);
+            }
+            return 3;
         }
+        memset(&lock, 0, sizeof lock);
+        lock.l_type = F_WRLCK;
+        lock.l_whence = SEEK_SET;
+        if (fcntl(fd, F_SETLK, &lock) != 0) {
+            err = errno;
+            if (err == EACCES || err == EAGAIN) {
+                got = pread(fd, text, sizeof text - 1, 0);
+                for (k = 0; got > 0 && k < got && k < capacity; ++k)
+                    holder[k] = text[k] == '\n' ? ' ' : text[k];
+                close(fd);
+                return 1;
+            }
+            close(fd);
+            return 2;
+        }
+        /* the lock is the file's (its inode's), not the name's: a run that ends removes the
+         * name, and one that opened the file just before then locks a file no longer in
+         * the folder while a third run makes and locks a new one. Held only while the
+         * name still leads to the locked file; else again, on the file now there. */
+        if (fstat(fd, &held) == 0 && stat(path, &named) == 0 && held.st_ino == named.st_ino &&
+            held.st_dev == named.st_dev)
+            break;
         close(fd);
-        return 2;
+        if (attempt == 100) {
+            copy_message(EAGAIN, holder, capacity);
+            return 3;
+        }
     }
     if (gethostname(host, sizeof host) != 0)
         strcpy(host, "unknown");

@@ -4,12 +4,14 @@
 !> caller decides which rank acts.
 module sph_filesystem
     use, intrinsic :: iso_c_binding, only: c_char, c_int, c_long_long, c_null_char
-    use sph_kinds, only: i8
+    use sph_kinds, only: i8, wp
+    use sph_logger, only: mb_text
     implicit none
     private
     public :: make_directories, rename_file, link_file, delete_file, list_directory
     public :: remove_empty_directory
     public :: write_text_file, write_text_file_whole, free_bytes, ends_with_new_line
+    public :: disk_hint
     public :: lock_for_process, LOCK_HELD, LOCK_BUSY, LOCK_UNSUPPORTED, LOCK_FAILED
 
     !> lock_for_process's answers: held; held by another process; the file system has no
@@ -227,6 +229,27 @@ contains
         character(len=*), intent(in) :: path
         free_bytes = int(c_free_bytes(trim(path) // c_null_char), i8)
     end function free_bytes
+
+    !> For a message on a failed write of the file `path`: ' (its file system has N MB free:
+    !> ...)' when its folder's file system has less than 16 MB free, else '' (HDF5 gives no
+    !> reason, and a disk that fills while a file is written is the usual one).
+    function disk_hint(path) result(hint)
+        character(len=*), intent(in) :: path
+        character(len=:), allocatable :: hint
+        integer(i8) :: free
+        integer :: k
+        k = index(path, '/', back=.true.)
+        if (k > 1) then
+            free = free_bytes(path(1:k - 1))
+        else if (k == 1) then
+            free = free_bytes('/')
+        else
+            free = free_bytes('.')
+        end if
+        hint = ''
+        if (free >= 0 .and. free < 16_i8 * 1024_i8**2) hint = ' (its file system has ' // &
+            mb_text(real(free, wp)) // ' free: the disk is full, or a quota reached?)'
+    end function disk_hint
 
     !> Append `piece` to the buffer (its storage doubles as needed).
     subroutine text_buffer_put(buffer, piece)

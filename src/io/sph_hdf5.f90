@@ -33,9 +33,9 @@ module sph_hdf5
     use hdf5
     use mpi_f08, only: MPI_INFO_NULL
     use sph_kinds, only: wp, i4, i8
-    use sph_errors, only: fatal_abort
+    use sph_errors, only: fatal_abort, STATUS_OUTPUT_FAILED
     use sph_mpi_env, only: mpi_env_t, global_sum, exclusive_scan_i8
-    use sph_filesystem, only: MAX_FILE_PATH
+    use sph_filesystem, only: MAX_FILE_PATH, disk_hint
     use sph_logger, only: int_text
     implicit none
     private
@@ -93,6 +93,23 @@ contains
         write(code, '(i0)') ierr
         call fatal_abort(where, 'HDF5 call failed (return code ' // trim(code) // ')')
     end subroutine check_h5
+
+    !> check_h5 for a call that writes to the file `path`: a failure stops with
+    !> STATUS_OUTPUT_FAILED, and where the file system is (nearly) full it says so instead
+    !> of printing HDF5's error stack (which gives no reason).
+    subroutine check_write(ierr, where, path)
+        integer, intent(in) :: ierr
+        character(len=*), intent(in) :: where, path
+        character(len=16) :: code
+        character(len=:), allocatable :: hint
+        integer :: ierr2
+        if (ierr >= 0) return
+        hint = disk_hint(path)
+        if (len(hint) == 0) call h5eprint_f(ierr2)
+        write(code, '(i0)') ierr
+        call fatal_abort(where, "writing '" // path // "' failed (HDF5 return code " // &
+            trim(code) // ')' // hint, STATUS_OUTPUT_FAILED)
+    end subroutine check_write
 
     subroutine library_acquire()
         integer :: ierr
@@ -336,17 +353,17 @@ contains
         call h5screate_simple_f(rank, dims(1:rank), space, ierr)
         call check_h5(ierr, where // ': h5screate_simple_f')
         call h5dcreate_f(file%id, name, file_type, space, dset, ierr)
-        call check_h5(ierr, where // ': h5dcreate_f')
+        call check_write(ierr, where // ': h5dcreate_f', file%path)
         call h5sclose_f(space, ierr)
         call check_h5(ierr, where // ': h5sclose_f')
         if (my_total > 0) then  ! same decision on every rank
             call row_spaces(dset, width, local, my_offset, where, filespace, memspace)
             call h5dwrite_f(dset, mem_type, buffer, ierr, memspace, filespace, file%xfer)
-            call check_h5(ierr, where // ': h5dwrite_f')
+            call check_write(ierr, where // ': h5dwrite_f', file%path)
             call close_spaces(filespace, memspace, where)
         end if
         call h5dclose_f(dset, ierr)
-        call check_h5(ierr, where // ': h5dclose_f')
+        call check_write(ierr, where // ': h5dclose_f', file%path)
     end subroutine write_rows
 
     !> File and memory dataspaces for `local` rows at `offset` of a dataset of `width`
@@ -680,7 +697,7 @@ contains
         integer :: ierr
         call create_attribute(file, name, file_type, at, attr)
         call h5awrite_f(attr, mem_type, buffer, ierr)
-        call check_h5(ierr, 'h5_write_attribute ' // name // ': h5awrite_f')
+        call check_write(ierr, 'h5_write_attribute ' // name // ': h5awrite_f', file%path)
         call h5aclose_f(attr, ierr)
         call check_h5(ierr, 'h5_write_attribute ' // name // ': h5aclose_f')
     end subroutine write_scalar

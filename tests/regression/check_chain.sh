@@ -3,18 +3,19 @@
 # scripts/jobs/sphremesh-chain, sends its ranks SIGTERM a moment after each start, and starts
 # it again while it asks for another job (status 75). The chained run must end where one
 # uninterrupted run ends, bitwise (same rank count). Then, in the same folder: a second case
-# starts afresh, a failing link after a stopped one fails, and a stop whose launcher fails
-# is still a stop however many lines follow it.
+# starts afresh, a failing link after a stopped one fails, a stop whose launcher fails is
+# still a stop however many lines follow it, and a failing link is a failure whatever another
+# chain writes to a shared log meanwhile.
 # usage: check_chain.sh CHAIN LAUNCHER PROGRAM INPUT WORKDIR PYTHON COMPARER
 set -u
 chain=$1 launcher=$2 program=$3 input=$4 work=$5 python=$6 comparer=$7
 log="output/chain-$(basename "$input" .nml).log"   # the chain's log of this input
 rm -rf "$work" && mkdir -p "$work/straight" "$work/chained" || exit 1
 link() { "$chain" -n 2 -i "$input" -o output -l "$launcher" -x "$program"; }
+# (the running link's lines are in a log of its own until it ends)
 progress_lines() {
-    local n
-    n=$(grep -cE '^ +[0-9]+ +[0-9.]+E[-+][0-9]+ ' "$log" 2> /dev/null)
-    echo "${n:-0}"
+    cat "$log" "${log%.log}".running-*.log 2> /dev/null | \
+        grep -cE '^ +[0-9]+ +[0-9.]+E[-+][0-9]+ '
 }
 
 cd "$work/straight" && link || { echo "the uninterrupted run failed:"; cat "$log"; exit 1; }
@@ -83,6 +84,24 @@ chmod +x launcher_after_stop
 status=$?
 [ $status -eq 75 ] || {
     echo "a stopped run with many lines after its stop gave $status, not 75"; exit 1; }
+# A link that fails while another chain sharing the log (an input of the same file name)
+# stops early: its own status (the other chain's line in the shared log made it 75, and the
+# failed link's job was resubmitted)
+cat > launcher_fails_beside_a_stop <<'SH'
+#!/usr/bin/env bash
+echo "stopped early by &run wall_time_limit (another chain's link)" >> output/chain-second.log
+echo "sphremesh: error in restart: (this link's own failure)"
+exit 1
+SH
+chmod +x launcher_fails_beside_a_stop
+"$chain" -n 2 -i second.nml -o output -l "$PWD/launcher_fails_beside_a_stop" -x "$program"
+status=$?
+[ $status -eq 1 ] || {
+    echo "a failed link beside another chain's stop gave $status, not 1"; exit 1; }
+ls output/chain-second.running-*.log > /dev/null 2>&1 && {
+    echo "the link's running log was left behind"; exit 1; }
+grep -q "this link's own failure" output/chain-second.log || {
+    echo "the link's lines were not appended to the chain's log"; exit 1; }
 # A case with only a damaged checkpoint in the folder stops (no silent start from t = 0); one
 # with only a checkpoint left unfinished (.tmp) starts
 sed -e "s/case_name = 'second'/case_name = 'third'/" second.nml > third.nml

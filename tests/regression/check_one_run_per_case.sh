@@ -68,4 +68,23 @@ launcher=$!
 for k in $(seq 100); do grep -q "^ *step " killed.log && break; sleep 0.1; done
 pkill -KILL -f "sphremesh long.nml" ; wait $launcher 2>/dev/null
 run case.nml > after_kill.log 2>&1 || fail "the run after a killed one failed:" after_kill.log
+# a lock file that is a symbolic link is refused (the run wrote its note into the file it led
+# to), status 74, that file unchanged
+rm -f "output/$case.lock"
+echo "precious" > elsewhere.txt
+ln -s ../elsewhere.txt "output/$case.lock"
+run case.nml > symlink.log 2>&1
+status=$?
+[ $status -eq 74 ] || fail "a symbolic link as the lock file: status $status, not 74:" symlink.log
+grep -q "symbolic link" symlink.log || fail "the message does not say so:" symlink.log
+[ "$(cat elsewhere.txt)" = precious ] || fail "the file the link led to was changed"
+rm -f "output/$case.lock"
+
+# the files a run makes follow the umask, as the HDF5 files do (a group's shared folder:
+# a teammate could not continue a run whose forces file and lock were made 0644)
+rm -rf output
+(umask 002; run case.nml > umask.log 2>&1) || fail "the run with umask 002 failed:" umask.log
+for f in "output/${case}_forces.csv" "output/$case.xdmf"; do
+    [ "$(stat -c %a "$f")" = 664 ] || fail "$f has mode $(stat -c %a "$f") with umask 002"
+done
 echo "one run of a case at a time in its folder"
