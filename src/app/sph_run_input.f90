@@ -65,15 +65,16 @@ contains
             unit='s', doc='checkpoint and stop (status 75) after this much wall time; 0 = none')
     end subroutine read_run_input
 
-    !> &output; the listed times must lie in [0, t_end] and increase. Entries past t_end (a
-    !> shortened run) are skipped with a note (the group's), not refused. The output folder must
-    !> be creatable: its nearest existing ancestor must be a directory (nothing is made here).
+    !> Whether `text` ends with `tail`.
     pure logical function ends_with(text, tail)
         character(len=*), intent(in) :: text, tail
         ends_with = .false.
         if (len(text) >= len(tail)) ends_with = text(len(text) - len(tail) + 1:) == tail
     end function ends_with
 
+    !> &output; the listed times must lie in [0, t_end] and increase. Entries past t_end (a
+    !> shortened run) are skipped with a note (the group's), not refused. The output folder must
+    !> be creatable: its nearest existing ancestor must be a directory (nothing is made here).
     subroutine read_output_input(grp, t_end, case_name, out)
         type(nml_group_t), intent(inout) :: grp
         real(wp), intent(in) :: t_end

@@ -70,7 +70,7 @@ sed -e "s/^&numerics/\&numerics\n    fixed_dt = 1.0e-30/" extended.nml > frozen.
 run "$np" frozen.nml --restart "$checkpoint" > frozen.log 2>&1
 status=$?
 [ "$status" -eq 3 ] || fail "a frozen time step exited with $status, not 3:" frozen.log
-grep -q "error in health check: the time step  1.000E-30 s no longer advances the time" \
+grep -q "error in health check: the time step 1.000E-30 s no longer advances the time" \
     frozen.log || fail "no message for the frozen time step:" frozen.log
 echo "a Verlet checkpoint's rates: kept when only the run is extended, evaluated anew otherwise"
 echo "another rho0 and a max_steps already passed refused; walls laid again for a wider kernel"
