@@ -83,12 +83,13 @@ contains
     subroutine lock_case_output(env, cfg)
         type(mpi_env_t), intent(in) :: env
         type(config_t), intent(in) :: cfg
-        character(len=:), allocatable :: path, about, text
+        character(len=:), allocatable :: path, about, text, made
         integer :: stat, dir_stat
         path = trim(cfg%output%output_dir) // '/' // trim(cfg%run%case_name) // '.lock'
         text = ''
         stat = LOCK_HELD
         if (env%rank == 0) then
+            made = missing_folders(trim(cfg%output%output_dir))
             call make_directories(trim(cfg%output%output_dir), dir_stat)
             call lock_for_process(path, stat, about)
             if (dir_stat /= 0) then
@@ -111,12 +112,31 @@ contains
         call broadcast_text(env, text)
         stat = agreed_status(env, stat)
         ! (the lock file goes when the run leaves, however it leaves but killed)
-        if (env%rank == 0 .and. stat == LOCK_HELD) call remove_at_exit(path)
+        if (env%rank == 0 .and. stat == LOCK_HELD) call remove_at_exit(path, made)
         if (stat == LOCK_BUSY) call fatal_collective('output', text)
         if (stat == LOCK_FAILED) call fatal_collective('output', text, STATUS_OUTPUT_FAILED)
         if (stat == LOCK_UNSUPPORTED) call log_warn("output: the file system of '" // &
             trim(cfg%output%output_dir) // "' has no file locks: a second run of case '" // &
             trim(cfg%run%case_name) // "' into it at the same time would not be noticed")
+    contains
+        !> The folders of `folder` and above it that do not exist yet, deepest first, one per
+        !> line (what make_directories will make).
+        function missing_folders(folder) result(list)
+            character(len=*), intent(in) :: folder
+            character(len=:), allocatable :: list
+            logical :: exists
+            integer :: k
+            list = ''
+            do k = len(folder), 1, -1
+                if (k < len(folder)) then
+                    if (folder(k + 1:k + 1) /= '/') cycle
+                end if
+                if (folder(k:k) == '/') cycle
+                inquire(file=folder(1:k) // '/.', exist=exists)
+                if (exists) exit
+                list = list // folder(1:k) // new_line('a')
+            end do
+        end function missing_folders
     end subroutine lock_case_output
 
     !> The files of an earlier run that this one could overwrite set aside before its first

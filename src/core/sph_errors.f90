@@ -20,8 +20,9 @@ module sph_errors
 
     type(MPI_Comm), save :: error_comm  !< set once by sph_mpi_env; MPI_COMM_SELF until then
     logical, save :: have_comm = .false.
-    !> a file this process removes when it leaves (remove_at_exit), '' = none
-    character(len=:), allocatable, save :: exit_removal
+    !> a file this process removes when it leaves (remove_at_exit), '' = none, and then the
+    !> folders it made for it, deepest first, one per line (each removed while empty)
+    character(len=:), allocatable, save :: exit_removal, exit_folders
 
     interface
         subroutine c_exit(status) bind(C, name="exit")
@@ -32,6 +33,10 @@ module sph_errors
             import :: c_int, c_char
             character(kind=c_char), intent(in) :: path(*)
         end function c_unlink
+        integer(c_int) function c_rmdir(path) bind(C, name="rmdir")
+            import :: c_int, c_char
+            character(kind=c_char), intent(in) :: path(*)
+        end function c_rmdir
     end interface
 
 contains
@@ -72,9 +77,7 @@ contains
             if (have_comm) call MPI_Barrier(error_comm, ierr)
             if (present(abort)) then
                 if (abort .and. have_comm) then
-                    if (allocated(exit_removal)) then
-                        if (len(exit_removal) > 0) ierr = c_unlink(exit_removal // c_null_char)
-                    end if
+                    call remove_exit_files()
                     call MPI_Abort(error_comm, code, ierr)
                 end if
             end if
@@ -109,9 +112,7 @@ contains
         code = 1
         if (present(status)) code = status
         ! (MPI_Abort does not come back to exit_process)
-        if (allocated(exit_removal)) then
-            if (len(exit_removal) > 0) ierr = c_unlink(exit_removal // c_null_char)
-        end if
+        call remove_exit_files()
         if (initialized .and. .not. finalized) then
             if (have_comm) then
                 call MPI_Abort(error_comm, code, ierr)
@@ -134,19 +135,38 @@ contains
     end subroutine check_mpi
 
     !> Have exit_process remove `path` (a run's lock file, which the run holds to its end
-    !> whatever way it leaves: done, stopped, or on an error).
-    subroutine remove_at_exit(path)
+    !> whatever way it leaves: done, stopped, or on an error), then `folders` (the folders
+    !> made for it, deepest first, one per line), each while it is empty: a restart that
+    !> failed left the output folder it had made for its lock.
+    subroutine remove_at_exit(path, folders)
         character(len=*), intent(in) :: path
+        character(len=*), intent(in), optional :: folders
         exit_removal = path
+        exit_folders = ''
+        if (present(folders)) exit_folders = folders
     end subroutine remove_at_exit
+
+    !> The remove_at_exit file and empty folders removed (a process that leaves).
+    subroutine remove_exit_files()
+        integer(c_int) :: rc
+        integer :: start, k
+        if (.not. allocated(exit_removal)) return
+        if (len(exit_removal) > 0) rc = c_unlink(exit_removal // c_null_char)
+        start = 1
+        do k = 1, len(exit_folders)
+            if (exit_folders(k:k) /= new_line('a')) cycle
+            ! (a folder with files in it stays, and so do those above it)
+            if (c_rmdir(exit_folders(start:k - 1) // c_null_char) /= 0) exit
+            start = k + 1
+        end do
+        exit_removal = ''
+        exit_folders = ''
+    end subroutine remove_exit_files
 
     !> Leave the process with a status and no STOP banner (removing the remove_at_exit file).
     subroutine exit_process(status)
         integer, intent(in) :: status
-        integer(c_int) :: rc
-        if (allocated(exit_removal)) then
-            if (len(exit_removal) > 0) rc = c_unlink(exit_removal // c_null_char)
-        end if
+        call remove_exit_files()
         flush(error_unit)
         call c_exit(int(status, c_int))
     end subroutine exit_process

@@ -87,4 +87,10 @@ rm -rf output
 for f in "output/${case}_forces.csv" "output/$case.xdmf"; do
     [ "$(stat -c %a "$f")" = 664 ] || fail "$f has mode $(stat -c %a "$f") with umask 002"
 done
+# a restart that fails (no such checkpoint) into a new folder leaves no folder behind (the
+# lock's folder, made before the checkpoint is read, goes again)
+sed -e "s#^ *output_dir = .*#    output_dir = 'made/for/it'#" case.nml > elsewhere.nml
+run elsewhere.nml --restart no_such_checkpoint.h5 > failed_restart.log 2>&1 && \
+    fail "a restart from a missing checkpoint did not fail:" failed_restart.log
+[ -e made ] && fail "the failed restart left the folder it made: $(find made)"
 echo "one run of a case at a time in its folder"
