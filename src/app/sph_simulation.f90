@@ -132,6 +132,15 @@ contains
                     if (folder(k + 1:k + 1) /= '/') cycle
                 end if
                 if (folder(k:k) == '/') cycle
+                ! (a '.' or '..' component is no folder of its own to remove)
+                if (folder(k:k) == '.') then
+                    if (k == 1) cycle
+                    if (folder(k - 1:k - 1) == '/') cycle
+                    if (folder(k - 1:k - 1) == '.') then
+                        if (k == 2) cycle
+                        if (folder(k - 2:k - 2) == '/') cycle
+                    end if
+                end if
                 inquire(file=folder(1:k) // '/.', exist=exists)
                 if (exists) exit
                 list = list // folder(1:k) // new_line('a')

@@ -111,7 +111,7 @@ int sph_lock_file(const char *path, char *holder, int capacity)
          * stays usable by the group) */
         /* (not through a symbolic link: the note would replace the contents of whatever
          * file it leads to) */
-        fd = open(path, O_RDWR | O_CREAT | O_NOFOLLOW, 0666);
+        fd = open(path, O_RDWR | O_CREAT | O_NOFOLLOW | O_NONBLOCK, 0666);
         if (fd < 0) {
             if (errno == ELOOP) {
                 const char *text_link = "it is a symbolic link, not a file: remove it";
@@ -141,14 +141,20 @@ int sph_lock_file(const char *path, char *holder, int capacity)
          * name, and one that opened the file just before then locks a file no longer in
          * the folder while a third run makes and locks a new one. Held only while the
          * name still leads to the locked file; else again, on the file now there. */
+        if (fstat(fd, &held) == 0 && !S_ISREG(held.st_mode)) {
+            const char *text_kind = "it is not a regular file: remove it";
+            for (k = 0; k < capacity && text_kind[k] != '\0'; ++k)
+                holder[k] = text_kind[k];
+            close(fd);
+            return 3;
+        }
         if (fstat(fd, &held) == 0 && stat(path, &named) == 0 && held.st_ino == named.st_ino &&
             held.st_dev == named.st_dev)
             break;
         close(fd);
-        if (attempt == 100) {
-            copy_message(EAGAIN, holder, capacity);
-            return 3;
-        }
+        /* (the name keeps moving under us: other runs take and leave it) */
+        if (attempt == 100)
+            return 1;
     }
     if (gethostname(host, sizeof host) != 0)
         strcpy(host, "unknown");

@@ -97,7 +97,8 @@ contains
             end if
             inquire(file=path(1:k - 1) // '/.', exist=exists)
             if (exists) cycle
-            rc = c_mkdir(path(1:k - 1) // c_null_char, int(o'755', c_int))
+            ! (the umask decides, as for the files: a group's shared folder stays the group's)
+            rc = c_mkdir(path(1:k - 1) // c_null_char, int(o'777', c_int))
             inquire(file=path(1:k - 1) // '/.', exist=exists)
             if (.not. exists) then
                 stat = 1

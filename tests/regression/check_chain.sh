@@ -102,6 +102,28 @@ ls output/chain-second.running-*.log > /dev/null 2>&1 && {
     echo "the link's running log was left behind"; exit 1; }
 grep -q "this link's own failure" output/chain-second.log || {
     echo "the link's lines were not appended to the chain's log"; exit 1; }
+# SIGTERM to the whole job (a batch system's time limit, qdel): the chain script waits for the
+# run to stop and keeps its lines (it died at once, and its exit trap removed them)
+cat > launcher_stops_on_term <<'SH'
+#!/usr/bin/env bash
+trap 'echo "stopped early by signal 15 (SIGTERM) at the checkpoint above"; exit 75' TERM
+echo "started"
+for k in $(seq 1 300); do sleep 0.1; done
+exit 0
+SH
+chmod +x launcher_stops_on_term
+setsid "$chain" -n 2 -i second.nml -o output -l "$PWD/launcher_stops_on_term" \
+    -x "$program" > /dev/null 2>&1 &
+chain_pid=$!
+for k in $(seq 1 300); do
+    grep -qs started output/chain-second.running-*.log && break; sleep 0.1
+done
+kill -TERM -- -"$chain_pid" 2> /dev/null
+wait $chain_pid
+status=$?
+[ $status -eq 75 ] || { echo "a chain signalled with its job gave $status, not 75"; exit 1; }
+grep -q "stopped early by signal 15" output/chain-second.log || {
+    echo "the signalled link's lines were lost"; exit 1; }
 # A case with only a damaged checkpoint in the folder stops (no silent start from t = 0); one
 # with only a checkpoint left unfinished (.tmp) starts
 sed -e "s/case_name = 'second'/case_name = 'third'/" second.nml > third.nml

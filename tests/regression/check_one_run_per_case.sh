@@ -31,7 +31,7 @@ print("held", flush=True)
 time.sleep(60)
 EOF
 holder=$!
-for k in $(seq 50); do grep -q held holder.log && break; sleep 0.1; done
+for k in $(seq 300); do grep -q held holder.log && break; sleep 0.1; done
 grep -q held holder.log || fail "the test could not take the lock:" holder.log
 run case.nml > second.log 2>&1
 status=$?
@@ -54,19 +54,26 @@ print("held", flush=True)
 time.sleep(60)
 EOF
 holder=$!
-for k in $(seq 50); do grep -q held holder2.log && break; sleep 0.1; done
+for k in $(seq 300); do grep -q held holder2.log && break; sleep 0.1; done
+grep -q held holder2.log || fail "the test could not take the lock again:" holder2.log
 sed -e "s/^ *case_name = .*/    case_name = 'other'/" case.nml > other.nml
 run other.nml > other.log 2>&1
 status=$?
 kill $holder 2>/dev/null; wait $holder 2>/dev/null
 [ $status -eq 0 ] || fail "another case in the folder was held up (status $status):" other.log
 
-# a run killed outright leaves no lock: the next one goes on
-sed -e 's/^ *t_end = .*/    t_end = 10.0/' case.nml > long.nml
-run long.nml --continue > killed.log 2>&1 &
+# a run killed outright (while it holds the lock) leaves no lock: the next one goes on
+long="long-$$.nml"   # (a name of this test's own for pkill)
+sed -e 's/^ *t_end = .*/    t_end = 10.0/' case.nml > "$long"
+run "$long" --continue > killed.log 2>&1 &
 launcher=$!
-for k in $(seq 100); do grep -q "^ *step " killed.log && break; sleep 0.1; done
-pkill -KILL -f "sphremesh long.nml" ; wait $launcher 2>/dev/null
+for k in $(seq 600); do
+    [ -e "output/$case.lock" ] && grep -q "^ *step " killed.log && break
+    sleep 0.1
+done
+[ -e "output/$case.lock" ] || fail "the long run never held the lock:" killed.log
+pkill -KILL -f "sphremesh $long" ; wait $launcher 2>/dev/null
+for k in $(seq 100); do pgrep -f "sphremesh $long" > /dev/null || break; sleep 0.1; done
 run case.nml > after_kill.log 2>&1 || fail "the run after a killed one failed:" after_kill.log
 # a lock file that is a symbolic link is refused (the run wrote its note into the file it led
 # to), status 74, that file unchanged
@@ -92,5 +99,7 @@ done
 sed -e "s#^ *output_dir = .*#    output_dir = 'made/for/it'#" case.nml > elsewhere.nml
 run elsewhere.nml --restart no_such_checkpoint.h5 > failed_restart.log 2>&1 && \
     fail "a restart from a missing checkpoint did not fail:" failed_restart.log
+grep -q "error in restart: cannot open 'no_such_checkpoint.h5'" failed_restart.log || \
+    fail "not the restart's message:" failed_restart.log
 [ -e made ] && fail "the failed restart left the folder it made: $(find made)"
 echo "one run of a case at a time in its folder"
