@@ -35,9 +35,12 @@ contains
 
         if (len(restart_from) > 0) then
             ! (before the checkpoint is read: a run of the case that is writing could remove
-            ! it meanwhile, and the refusal named the checkpoint instead of that run)
-            call lock_case_output(env, cfg)
+            ! it meanwhile, and the refusal named the checkpoint instead of that run; not when
+            ! there is nothing to read: the lock's folder, made first, turned a missing
+            ! --restart folder into an empty one, and the restart's message with it)
+            if (restart_source_exists(env, restart_from)) call lock_case_output(env, cfg)
             call simulation_restart(sim, env, cfg, restart_from)
+            call lock_case_output(env, cfg)
             if (sim%time >= cfg%run%t_end * (1.0_wp - 1.0e-12_wp)) &
                 call fatal_collective('restart', &
                 'the checkpoint is already at the end time; raise &run t_end to continue the run')
@@ -71,6 +74,21 @@ contains
         status = merge(75, 0, len(sched%stopped_by) > 0)
     end subroutine simulation_run
 
+    !> Whether the file or folder a restart reads exists (rank 0 looks; collective).
+    logical function restart_source_exists(env, from)
+        type(mpi_env_t), intent(in) :: env
+        character(len=*), intent(in) :: from
+        logical :: is_file, is_folder
+        integer :: found
+        found = 0
+        if (env%rank == 0) then
+            inquire(file=from, exist=is_file)
+            inquire(file=from // '/.', exist=is_folder)
+            if (is_file .or. is_folder) found = 1
+        end if
+        restart_source_exists = agreed_status(env, found) == 1
+    end function restart_source_exists
+
     !> One run of a case at a time in its output folder (collective): rank 0 holds the lock
     !> `<output_dir>/<case>.lock` for the life of the run (taken after a fresh run's set-up,
     !> before its first change to the folder, so that bad input leaves nothing there; before a
@@ -85,6 +103,10 @@ contains
         type(config_t), intent(in) :: cfg
         character(len=:), allocatable :: path, about, text, made
         integer :: stat, dir_stat
+        logical, save :: lock_taken = .false.
+        ! (once a run: a restart takes it before and, when it did not, after its read)
+        if (lock_taken) return
+        lock_taken = .true.
         path = trim(cfg%output%output_dir) // '/' // trim(cfg%run%case_name) // '.lock'
         text = ''
         stat = LOCK_HELD
@@ -156,12 +178,18 @@ contains
         integer(i8), intent(in) :: after_step
         character(len=:), allocatable :: folder, errmsg
         character(len=16) :: count_text
-        integer :: moved, stat
+        integer :: moved, stat, dropped
         call set_aside_earlier_output(env, trim(cfg%output%output_dir), &
-            trim(cfg%run%case_name), after_step, moved, folder, stat, errmsg)
+            trim(cfg%run%case_name), after_step, moved, folder, stat, errmsg, dropped)
         if (stat /= 0) call fatal_collective('output', errmsg // '; nothing was ' // &
             'overwritten: free space or move the earlier files away (or choose another ' // &
             '&output output_dir), then run again', STATUS_OUTPUT_FAILED)
+        if (dropped > 0) then
+            write(count_text, '(i0)') dropped
+            call log_warn("output: dropped " // trim(count_text) // " row(s) cut short (a " // &
+                "crash or a full disk of an earlier run) from '" // &
+                trim(cfg%output%output_dir) // '/' // trim(cfg%run%case_name) // "_forces.csv'")
+        end if
         if (moved == 0) return
         write(count_text, '(i0)') moved
         if (after_step < 0) then

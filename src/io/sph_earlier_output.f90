@@ -80,19 +80,24 @@ contains
     !> yet); folder: where they went. stat /= 0 with errmsg when a file could not be moved
     !> (then the ones moved before it are moved back, so that the earlier run's files stay
     !> together, and nothing was overwritten).
+    !> rows_dropped (a restart): rows of the forces file cut short (a crash or a full disk
+    !> of an earlier run) that were dropped from it, when no row of a later step sent the
+    !> file aside (with them in it).
     subroutine set_aside_earlier_output(env, directory, case_name, after_step, moved, folder, &
-            stat, errmsg)
+            stat, errmsg, rows_dropped)
         type(mpi_env_t), intent(in) :: env
         character(len=*), intent(in) :: directory, case_name
         integer(i8), intent(in) :: after_step
         integer, intent(out) :: moved, stat
         character(len=:), allocatable, intent(out) :: folder, errmsg
+        integer, intent(out), optional :: rows_dropped
         character(len=:), allocatable :: listing, name, result_text
         character(len=32) :: number
         !> the names moved so far, one per line (moved back when a later one cannot move)
         type(text_buffer_t) :: moved_names
         !> whether this call made `folder` (only then may it go again)
         logical :: made_folder
+        integer :: dropped
         integer :: start, k, list_stat, n
         integer(i8) :: step
         logical :: exists
@@ -103,6 +108,7 @@ contains
         errmsg = ''
         result_text = ''
         made_folder = .false.
+        dropped = 0
         if (env%rank == 0) then
             call list_directory(directory, listing, list_stat)
             ! (a directory that cannot be listed does not exist yet: the output makes it)
@@ -138,12 +144,13 @@ contains
             ! ran backwards), and the index of those files is kept beside them
             if (stat == 0 .and. after_step >= 0) call split_continued_files()
             ! (to the other ranks as lines: the counts, the folder, the message)
-            write(number, '(i0, 1x, i0)') stat, moved
+            write(number, '(i0, 1x, i0, 1x, i0)') stat, moved, dropped
             result_text = trim(number) // new_line('a') // folder // new_line('a') // errmsg
         end if
         call broadcast_text(env, result_text)
         n = index(result_text, new_line('a'))
-        read(result_text(1:n - 1), *) stat, moved
+        read(result_text(1:n - 1), *) stat, moved, dropped
+        if (present(rows_dropped)) rows_dropped = dropped
         result_text = result_text(n + 1:)
         n = index(result_text, new_line('a'))
         folder = result_text(1:n - 1)
@@ -185,11 +192,13 @@ contains
             integer :: start, comma, second, read_stat, header_commas
             integer(i8) :: row_step
             logical :: later
+            integer :: cut
             path = directory // '/' // case_name // '_forces.csv'
             call read_whole(path, text, read_stat)
             if (read_stat == 0) then
                 kept = ''
                 later = .false.
+                cut = 0
                 start = 1
                 do while (start <= len(text))
                     call next_line(text, start, line)
@@ -205,13 +214,26 @@ contains
                     ! header's, goes with the later rows: kept, it sat among them as a
                     ! malformed row, its step perhaps a prefix of the real one)
                     if (len(kept) == 0) header_commas = count_commas(line)
-                    if (row_step > after_step .or. (len(kept) > 0 .and. &
-                        count_commas(line) /= header_commas)) then
+                    if (row_step > after_step) then
                         later = .true.
+                    else if (len(kept) > 0 .and. count_commas(line) /= header_commas) then
+                        cut = cut + 1
                     else
                         kept = kept // line // new_line('a')
                     end if
                 end do
+                ! rows cut short alone (no later step: nothing to set aside) are dropped in
+                ! place (set aside, they made a folder and a warning of later steps that
+                ! were not there)
+                if (.not. later .and. cut > 0) then
+                    reason = ''
+                    call write_text_file_whole(path, kept, stat, reason)
+                    if (stat /= 0) then
+                        errmsg = "cannot drop the rows cut short of '" // path // "': " // reason
+                        return
+                    end if
+                    dropped = cut
+                end if
                 if (later) then
                     if (moved == 0) call new_folder(folder, stat)
                     if (stat == 0) call rename_file(path, folder // '/' // case_name // &

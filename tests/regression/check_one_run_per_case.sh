@@ -102,4 +102,11 @@ run elsewhere.nml --restart no_such_checkpoint.h5 > failed_restart.log 2>&1 && \
 grep -q "error in restart: cannot open 'no_such_checkpoint.h5'" failed_restart.log || \
     fail "not the restart's message:" failed_restart.log
 [ -e made ] && fail "the failed restart left the folder it made: $(find made)"
+# --restart of its own output folder, which does not exist: the restart's message for a
+# missing source (the lock's folder, made first, turned it into an empty folder's)
+run elsewhere.nml --restart made/for/it > missing_folder.log 2>&1 && \
+    fail "a restart from a missing folder did not fail:" missing_folder.log
+grep -q "error in restart: cannot open 'made/for/it'" missing_folder.log || \
+    fail "not the message for a missing source:" missing_folder.log
+[ -e made ] && fail "the failed restart left a folder: $(find made)"
 echo "one run of a case at a time in its folder"

@@ -53,17 +53,17 @@ cmp -s "output/${case}.xdmf" "kept/${case}.xdmf" || fail "the earlier .xdmf was 
 "$python" "$checker" "output/${case}.xdmf" > check_1.log 2>&1 || \
     fail "the earlier .xdmf does not open its snapshots:" check_1.log
 
-# a forces row cut short (a crash of an older version): the continued run sets the file
-# aside whole and goes on with its whole rows (before, the first new row was appended onto
-# the cut one)
+# a forces row cut short (a crash of an older version): the continued run drops it, says so,
+# and goes on with whole rows (before, the first new row was appended onto the cut one);
+# nothing is set aside (there is no later step)
 rm -rf output && cp -r kept output
 head -c -40 "kept/${case}_forces.csv" > "output/${case}_forces.csv"
-cp "output/${case}_forces.csv" cut.csv
 run longer.nml --continue > cut.log 2>&1 || fail "the continued run failed:" cut.log
+grep -q "warning: output: dropped 1 row(s) cut short" cut.log || \
+    fail "no word of the dropped row:" cut.log
 awk -F, 'NF != 15 { print "line " NR ": " NF " fields"; bad = 1 } END { exit bad }' \
     "output/${case}_forces.csv" > fields.log || fail "rows are not whole:" fields.log
-cmp -s cut.csv "output/${case}_earlier_1/${case}_forces.csv" || \
-    fail "the forces file with the cut row was not set aside whole"
+[ -e "output/${case}_earlier_1" ] && fail "a folder was set aside for a cut row alone"
 # cut inside a row's step (at the restart's own step and after it): a restart from the older
 # checkpoint sets it aside with the later rows (before, it kept it among the rows it kept)
 rm -rf output && cp -r kept output
