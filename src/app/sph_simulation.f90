@@ -92,8 +92,8 @@ contains
     !> One run of a case at a time in its output folder (collective): rank 0 holds the lock
     !> `<output_dir>/<case>.lock` for the life of the run (taken after a fresh run's set-up,
     !> before its first change to the folder, so that bad input leaves nothing there; before a
-    !> restart reads its checkpoint; removed when the process leaves). A second run of the same input
-    !> (a job submitted twice, a chain's link started while the one before still ran) set the
+    !> restart reads its checkpoint; removed when the process leaves). A second run of the
+    !> same input (a job submitted twice, a chain's link started while the one before ran) set the
     !> first run's files aside while it wrote them, and both then wrote over each other's
     !> snapshots, .xdmf and forces file. The system drops the lock when the run ends, however
     !> it ends, so none is left behind; where the file system has no locks (some parallel

@@ -21,18 +21,23 @@ run case.nml > first.log 2>&1 || fail "the first run failed:" first.log
 [ -e "output/$case.lock" ] && fail "the finished run left its lock file"
 cp -r output kept
 
-# another process holds the lock (an fcntl lock, as sphremesh takes it)
-"$python" - "output/$case.lock" > holder.log 2>&1 <<'EOF' &
+# another process holds the lock (an fcntl lock, as sphremesh takes it): a Python holder in
+# the background, with the note given (as sphremesh writes one); its pid in $holder
+hold_lock() {
+    "$python" - "output/$case.lock" "${2:-}" > "$1" 2>&1 <<'EOF' &
 import fcntl, sys, time
 f = open(sys.argv[1], "a+")
 fcntl.lockf(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-f.truncate(0); f.write("host test, process 1, job none, since now\n"); f.flush()
+if sys.argv[2]:
+    f.truncate(0); f.write(sys.argv[2] + "\n"); f.flush()
 print("held", flush=True)
 time.sleep(60)
 EOF
-holder=$!
-for k in $(seq 300); do grep -q held holder.log && break; sleep 0.1; done
-grep -q held holder.log || fail "the test could not take the lock:" holder.log
+    holder=$!
+    for k in $(seq 300); do grep -q held "$1" && break; sleep 0.1; done
+    grep -q held "$1" || fail "the test could not take the lock:" "$1"
+}
+hold_lock holder.log "host test, process 1, job none, since now"
 run case.nml > second.log 2>&1
 status=$?
 kill $holder 2>/dev/null; wait $holder 2>/dev/null
@@ -46,16 +51,7 @@ for f in kept/*; do
 done
 
 # another case in the same folder runs while this one's lock is held
-"$python" - "output/$case.lock" > holder2.log 2>&1 <<'EOF' &
-import fcntl, sys, time
-f = open(sys.argv[1], "a+")
-fcntl.lockf(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-print("held", flush=True)
-time.sleep(60)
-EOF
-holder=$!
-for k in $(seq 300); do grep -q held holder2.log && break; sleep 0.1; done
-grep -q held holder2.log || fail "the test could not take the lock again:" holder2.log
+hold_lock holder2.log
 sed -e "s/^ *case_name = .*/    case_name = 'other'/" case.nml > other.nml
 run other.nml > other.log 2>&1
 status=$?
