@@ -852,8 +852,9 @@ def case_multires(runner, args):
             block.lines.append(f"| {label} | {level} (L/{n}) | " +
                                " | ".join(percent(e) for e in errors) +
                                f" | {ref} | {ratio} | {worst:.4f} ({jump_ok}) |")
-        block.lines.append("")
+    # one table: a blank line between its rows would end it (the rows after it showed as text)
     block.lines += [
+        "",
         "Largest ratio to the uniform run in the same region: coarse "
         f"{worst_ratio[0]:.2f}, fine {worst_ratio[1]:.2f}",
         "(issue 11's target: 1.25 at every time).", "",

@@ -82,7 +82,7 @@ contains
         call simulation_remesh(sim, env, mode)
         call timers_leave(sim%timers, previous)
         if (sim%cfg%remesh%disorder_threshold <= 0.0_wp) return
-        ! a fresh set has some disorder of its own (0.13-0.17 on the cylinder flow): a
+        ! a fresh set has some disorder of its own (0.15-0.18 on the cylinder flow): a
         ! threshold below it would remesh at every check
         disorder = disorder_from_sums(global_sum(env, nearest_distance_sums(sim%p, sim%nl)))
         write(text, '(a, f8.5)') 'remesh: disorder after the remesh ', disorder

@@ -181,7 +181,8 @@ contains
         if (trim(num%viscosity_model) == 'strain_rate' .and. &
             (trim(num%wall_model) == 'mirror' .or. trim(num%wall_model) == 'repulsive_mirror')) &
             call grp%error('viscosity_model', "'strain_rate' works with wall_model = " // &
-                "'morris' only (mirror images do not carry a consistent strain rate)")
+                "'morris' or 'repulsive', not '" // trim(num%wall_model) // &
+                "' (mirror images do not carry a consistent strain rate)")
         if (trim(num%wall_extrapolation) == 'quadratic' .and. &
             trim(num%wall_model) /= 'morris') call grp%error('wall_extrapolation', &
                 "'quadratic' works with wall_model = 'morris' only (the other models have " // &
