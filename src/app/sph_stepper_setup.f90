@@ -10,6 +10,8 @@ submodule (sph_stepper) sph_stepper_setup
     use sph_snapshot, only: read_snapshot_header
     use sph_checkpoint, only: stored_spacing
     use sph_initial, only: lattice_mass_factor
+    use sph_particles, only: KIND_WALL
+    use sph_physics, only: WALLS_MORRIS
     implicit none
 
 contains
@@ -50,6 +52,8 @@ contains
         else
             call create_lattice_particles(cfg, sim%phys, sim%solids, sim%domain, sim%p)
         end if
+        if (len_trim(cfg%domain%initial_particles) == 0) call check_bodies_hold_sites(sim, &
+            env, cfg)
         ! balance by particle count (walls included: they cost work too)
         call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
         call migrate(sim, env)
@@ -460,6 +464,51 @@ contains
             // 'refined (', before, ' -> ', global_sum(env, int(sim%p%n_owned, i8)), ' particles)'
         call log_info(trim(line))
     end subroutine refine_if_uniform
+
+    !> Morris walls are the lattice sites inside a solid: a body that holds none (a circle
+    !> of radius 0.55 dx between four sites, a plate half a spacing thick between two rows)
+    !> gets no wall particle, and the run went on without it, its force exactly 0. Refused,
+    !> naming the body and what would hold a site wherever it lies (collective).
+    subroutine check_bodies_hold_sites(sim, env, cfg)
+        type(simulation_t), intent(in) :: sim
+        type(mpi_env_t), intent(in) :: env
+        type(config_t), intent(in) :: cfg
+        integer(i8), allocatable :: held(:)
+        integer :: n_bodies, first, i, b
+        character(len=:), allocatable :: need
+        if (sim%phys%walls /= WALLS_MORRIS .or. .not. allocated(cfg%bodies)) return
+        n_bodies = size(cfg%bodies)
+        if (n_bodies == 0) return
+        ! the bodies follow the box's planes in the solids' list, in input order
+        first = size(sim%solids%list) - n_bodies
+        allocate(held(n_bodies))
+        held = 0_i8
+        do i = 1, sim%p%n_owned
+            if (sim%p%kind(i) /= KIND_WALL) cycle
+            b = sim%p%solid(i) - first
+            if (b >= 1 .and. b <= n_bodies) held(b) = held(b) + 1_i8
+        end do
+        held = global_sum(env, held)
+        do b = 1, n_bodies
+            if (held(b) > 0_i8) cycle
+            select case (trim(cfg%bodies(b)%shape))
+            case ('circle', 'cylinder')
+                need = 'a radius of at least dx / sqrt(2) (' // &
+                    sci_text(cfg%domain%dx / sqrt(2.0_wp), 4) // ' m)'
+            case ('sphere')
+                need = 'a radius of at least dx sqrt(3) / 2 (' // &
+                    sci_text(cfg%domain%dx * sqrt(3.0_wp) / 2.0_wp, 4) // ' m)'
+            case default
+                need = 'sides of at least dx (' // sci_text(cfg%domain%dx, 4) // ' m)'
+            end select
+            call fatal_collective('input', '&body ' // int_text(int(b, i8)) // " ('" // &
+                trim(cfg%bodies(b)%name) // "'): the " // trim(cfg%bodies(b)%shape) // &
+                ' holds no site of the particle lattice (&domain dx = ' // &
+                sci_text(cfg%domain%dx, 4) // " m), so with wall_model = 'morris' it " // &
+                'would have no wall particle, no effect on the flow and no force; a ' // &
+                trim(cfg%bodies(b)%shape) // ' holds a site wherever it lies with ' // need)
+        end do
+    end subroutine check_bodies_hold_sites
 
     subroutine log_setup(sim, env)
         type(simulation_t), intent(in) :: sim
