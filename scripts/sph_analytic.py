@@ -36,6 +36,22 @@ def poiseuille(y, t, force, width, nu, terms=2000):
     return v
 
 
+def channel(case, y, t, par):
+    """The velocity along the flow of the channel par (sph_error_table.channel_parameters) at
+    distances y from its resting wall, time t (inf: steady), as the program's reference
+    (sph_reference): 'poiseuille' the body force's series; 'couette' the moving wall's plus,
+    where there is one, the body force's (the problem is linear; the Poiseuille profile is
+    the same from either wall). None for another case."""
+    if case == "poiseuille":
+        return poiseuille(y, t, par["force"], par["width"], par["nu"])
+    if case == "couette":
+        v = couette(y, t, par["wall_speed"], par["width"], par["nu"])
+        if par["force"] != 0.0:
+            v = v + poiseuille(y, t, par["force"], par["width"], par["nu"])
+        return v
+    return None
+
+
 if __name__ == "__main__":
     import sys
     # (a library of the other scripts: run on its own it did nothing, and said nothing)

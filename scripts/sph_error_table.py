@@ -112,11 +112,8 @@ def snapshot_error(path, case=None, steady=False, level=None, band=None, outside
         raise ValueError("no fluid particle in the selection (--level, --band, --outside)")
     y = wall_distance(par, pos[fluid])
     t = np.inf if steady else time
-    if case == "poiseuille":
-        exact_x = sph_analytic.poiseuille(y, t, par["force"], par["width"], par["nu"])
-    elif case == "couette":
-        exact_x = sph_analytic.couette(y, t, par["wall_speed"], par["width"], par["nu"])
-    else:
+    exact_x = sph_analytic.channel(case, y, t, par)
+    if exact_x is None:
         raise ValueError(f"{path}: no analytic case (input analytic='{case}'); give --case")
     exact = np.zeros_like(vel[fluid])
     exact[:, par["flow"]] = exact_x

@@ -151,13 +151,7 @@ def draw(args, data, par, faces, width):
     fig, (ax_u, ax_rho) = plt.subplots(1, 2, figsize=(10, 4.5))
     y = np.linspace(par["y0"], par["y0"] + par["width"], 400)
     # (only for a case that has one: a zero 'analytic' line was drawn for the others)
-    exact = None
-    if par["case"] == "poiseuille":
-        exact = sph_analytic.poiseuille(y - par["y0"], data["time"], par["force"], par["width"],
-                                        par["nu"])
-    elif par["case"] == "couette":
-        exact = sph_analytic.couette(y - par["y0"], data["time"], par["wall_speed"],
-                                     par["width"], par["nu"])
+    exact = sph_analytic.channel(par["case"], y - par["y0"], data["time"], par)
     if exact is not None:
         ax_u.plot(exact, y, "k-", lw=1, label="analytic")
     real = data["kind"] == 0

@@ -38,10 +38,9 @@ si_scale = sph_snapshot.si_scale
 def exact_profile(par, case, y, t):
     """Analytic velocity along the flow at distances y from the resting wall (wall_distance),
     time t (inf: steady)."""
-    if case == "poiseuille":
-        return sph_analytic.poiseuille(y, t, par["force"], par["width"], par["nu"])
-    if case == "couette":
-        return sph_analytic.couette(y, t, par["wall_speed"], par["width"], par["nu"])
+    exact = sph_analytic.channel(case, y, t, par)
+    if exact is not None:
+        return exact
     raise ValueError(f"no analytic solution for case '{case}' (give --case poiseuille|couette)")
 
 

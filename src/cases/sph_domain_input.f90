@@ -256,6 +256,19 @@ contains
             errmsg = name // ' needs both walls at rest'
             return
         end if
+        ! a reference of a fluid at rest is 0, and its 'relative' error was the velocities'
+        ! norm in m/s, printed as a percentage
+        if (all(drive == 0.0_wp)) then
+            if (trim(analytic) == 'couette') then
+                errmsg = name // ' needs a moving wall (&domain wall_velocity) or a body ' // &
+                    'force along the flow (&fluid body_force); with neither the fluid stays ' // &
+                    "at rest (or analytic = 'none')"
+            else
+                errmsg = name // ' needs a body force along the flow (&fluid body_force); ' // &
+                    "without one the fluid stays at rest (or analytic = 'none')"
+            end if
+            return
+        end if
         ! the flow axis: the one axis the drive points along, or the first other axis
         channel%flow_axis = 0
         do axis = 1, 3
