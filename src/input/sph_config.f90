@@ -186,6 +186,8 @@ contains
                 "fluid, so the moving walls of &domain wall_velocity would move nothing; " // &
                 "use 'morris', 'mirror' or 'repulsive_mirror'")
         end if
+        ! (found at set-up before, after the resolved input, naming neither axis nor sizes)
+        if (grp(3)%n_errors == 0 .and. grp(5)%n_errors == 0) call check_periodic_sides()
         if (sum(grp%n_errors) == 0) call check_analytic_channel(grp(1), cfg%run%analytic, &
             cfg%domain, cfg%fluid%body_force)
         ! (the references' series divide by the viscosity: nu = 0 trapped at the first snapshot)
@@ -217,6 +219,33 @@ contains
             sum(regions%n_errors) == 0) call check_refinement(grp(10), regions, grp(3), &
             grp(5), grp(9), cfg%refinement, cfg%regions, cfg%domain, cfg%numerics, cfg%remesh)
     contains
+
+        !> A periodic side must hold two kernel supports: a particle would otherwise meet
+        !> its own periodic image within its support.
+        subroutine check_periodic_sides()
+            character(len=16) :: support, side, fit
+            integer :: axis
+            real(wp) :: dx
+            dx = cfg%domain%dx
+            if (.not. dx > 0.0_wp) return
+            do axis = 1, min(max(cfg%domain%dimension, 2), 3)
+                if (.not. cfg%domain%is_periodic(axis)) cycle
+                if (cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis) >= &
+                    2.0_wp * kernel_support_at(dx)) cycle
+                write(support, '(es10.3)') kernel_support_at(dx)
+                write(side, '(es10.3)') cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis)
+                ! the shortest side of whole spacings that holds two supports
+                write(fit, '(es10.3)') cfg%domain%box_lo(axis) + dx * &
+                    real(ceiling(2.0_wp * kernel_support_at(dx) / dx - 1.0e-9_wp), wp)
+                call grp(3)%error('box_hi(' // achar(iachar('0') + axis) // ')', &
+                    'the periodic side on axis ' // achar(iachar('0') + axis) // ' is ' // &
+                    trim(adjustl(side)) // ' m, less than two kernel supports (2 x ' // &
+                    trim(adjustl(support)) // ' m at dx with &numerics kernel and ' // &
+                    'h_factor), so a particle would meet its own image; box_hi(' // &
+                    achar(iachar('0') + axis) // ') = ' // trim(adjustl(fit)) // &
+                    ' m or more, or a smaller dx')
+            end do
+        end subroutine check_periodic_sides
 
         !> &remesh mode = 'coarsen': the kernel's support at 2 dx must not exceed half a
         !> periodic side (as at set-up at dx).
