@@ -9,7 +9,7 @@ module sph_schedule
     use sph_config, only: config_t
     use sph_mpi_env, only: mpi_env_t, global_max, global_sum
     use sph_memory, only: peak_resident_bytes
-    use sph_logger, only: log_info, fixed_text
+    use sph_logger, only: log_info, fixed_text, int_text, sci_text
     use sph_rates, only: local_max_speed
     use sph_reference, only: steady_after
     use sph_stepper, only: simulation_t, simulation_write_snapshot, &
@@ -296,6 +296,10 @@ contains
         write(line, '(a,i0,a,es12.5,a,f11.3,a)') 'finished: ', sim%step - sched%first_step, &
             ' steps to t = ', sim%time, ' s in ', wall_now - sched%wall_start, ' s wall'
         call log_info(trim(line))
+        ! an intended limit (status 0), but the user may have meant t_end
+        if (sim%step >= sched%max_steps .and. sim%time < sched%t_end * (1.0_wp - time_tol)) &
+            call log_info('stopped at &run max_steps = ' // int_text(sched%max_steps) // &
+            ' before t_end = ' // sci_text(sched%t_end, 5) // ' s')
         call log_peak_memory(sim, env)
         call log_time_split(sim, env)
         if (len(sched%stopped_by) > 0) call log_info('stopped early by ' // &

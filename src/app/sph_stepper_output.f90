@@ -207,6 +207,14 @@ contains
                 sim%cfg%run%t_end, ' s at that step'
         end if
         call log_info(trim(line))
+        ! max_steps (1e8 by default) would end the run first
+        if (remaining >= real(sim%cfg%run%max_steps - sim%step, wp) * limit_value) then
+            write(line, '(a,i0,a,es10.3,a,es10.3,a)') 'check: &run max_steps = ', &
+                sim%cfg%run%max_steps, ' ends the run first, near t = ', sim%time + &
+                real(sim%cfg%run%max_steps - sim%step, wp) * limit_value, &
+                ' s at that step, before t_end = ', sim%cfg%run%t_end, ' s'
+            call log_info(trim(line))
+        end if
         if (multires(sim)) call log_info('check: virtual particles by the ' // &
             trim(sim%cfg%refinement%virtual_rule) // ' rule (&refinement virtual_rule)')
         if (sim%subcycling) then

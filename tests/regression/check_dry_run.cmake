@@ -19,8 +19,10 @@ if(SHIPPED)
         list(APPEND expects "check: &remesh mode = '${CMAKE_MATCH_1}': .*MB")
     endif()
 elseif(HUGE_T_END)
-    # t_end = 1e20: no step count beyond an integer's range
+    # t_end = 1e20: no step count beyond an integer's range; the default max_steps ends the
+    # run long before (said nothing before)
     set(expects "check: more than 1e15 steps to t_end = +1\\.000E\\+020 s"
+        "check: &run max_steps = 100000000 ends the run first, near t = "
         "check: the input is valid")
 else()
     set(expects "check: level 0: 920 particles \\(800 fluid, 120 wall\\)"

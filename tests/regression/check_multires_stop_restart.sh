@@ -22,6 +22,9 @@ else
 fi
 grep -q "max_steps = $stop\$" stop.nml || { echo "could not lower max_steps"; exit 1; }
 run stop.nml > log 2>&1 || { echo "the stopped run failed:"; cat log; exit 1; }
+# (status 0: an intended limit, but the log says that t_end was not reached)
+grep -q "^stopped at &run max_steps = $stop before t_end = " log || {
+    echo "the stopped run's log does not say that max_steps ended it:"; tail -20 log; exit 1; }
 ls out/*_checkpoint_$(printf %06d "$stop").h5 > /dev/null 2>&1 || {
     echo "no checkpoint at step $stop"; exit 1; }
 run "$input" --restart out > restart.log 2>&1 || {
