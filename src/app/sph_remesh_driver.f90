@@ -290,7 +290,7 @@ contains
             integer :: no, ns, i, nmf, nvf, nrf, own, n_isolated, n_unreached
             logical :: ok, full_reach
             real(wp) :: h, reach, scale, mass_new
-            character(len=200) :: text
+            character(len=400) :: text
             st = 0
             text = ''
             h = max(dx, dx * remesh_spacing_factor(mode))

@@ -102,7 +102,7 @@ contains
         real(wp), allocatable :: acc(:, :)
         real(wp) :: mom_old(3), mom_new(3), dv(3)
         integer :: i, j, st, n_mfb, n_vfb, n_rfb
-        character(len=120) :: msg
+        character(len=400) :: msg
 
         allocate(acc(transfer_rows(dim), max(n_new, 1)))
         call transfer_accumulate(dim, h, n_old, x_old, m_old, v_old, rho_old, e_old, n_new, &
@@ -326,8 +326,14 @@ contains
             end if
         end do
         if (lost > 0) then
-            write(errmsg, '(a, i0, a)') 'remesh_transfer: ', lost, &
-                ' old particle(s) have no new particle within the support'
+            ! (what a user can act on: the geometry, not the transfer's internals; a slot
+            ! one fine spacing wide along a closed box's walls, coarsened, fz31)
+            write(errmsg, '(a, i0, a, es10.3, a)') 'remesh_transfer: ', lost, &
+                ' old particle(s) have no new particle within the support, nor within ', &
+                ISOLATED_REACH * h, ' m: they lie where the new spacing leaves no room for ' // &
+                'a particle (a slot or gap between solids narrower than about one new ' // &
+                'spacing), so their mass has nowhere to go: the geometry cannot be ' // &
+                'remeshed to the new spacing (keep the present one, or widen the gap)'
             stat = 1
         end if
 
