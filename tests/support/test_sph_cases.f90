@@ -32,18 +32,22 @@ contains
         if (present(lid)) cfg%domain%wall_velocity(:, 4) = [lid, 0.0_wp, 0.0_wp]
     end function config_from_text
 
-    !> Morris' channel (L = 1e-3 m), Poiseuille or Couette, at dx = L / n_across.
+    !> Morris' channel (L = 1e-3 m), Poiseuille or Couette, at dx = L / n_across; L/2 long,
+    !> and at least 6 dx (two kernel supports of 2.6 dx: the input check refuses less).
     function channel_text(kind, n_across, t_end) result(text)
         character(len=*), intent(in) :: kind
         integer, intent(in) :: n_across
         real(wp), intent(in) :: t_end
         character(len=:), allocatable :: text
-        character(len=64) :: dx_text, t_text
+        character(len=64) :: dx_text, t_text, length_text
         write(dx_text, '(es24.16)') 1.0e-3_wp / n_across
+        length_text = '0.5e-3'
+        if (n_across < 12) write(length_text, '(es24.16)') 1.0e-3_wp / n_across * 6.0_wp
         write(t_text, '(es24.16)') t_end
         text = "&run case_name='" // kind // "', t_end=" // trim(t_text) // ", analytic='" // &
             kind // "' /" // nl // &
-            "&domain dimension=2, box_hi=0.5e-3, 1.0e-3, dx=" // trim(dx_text) // &
+            "&domain dimension=2, box_hi=" // trim(length_text) // ", 1.0e-3, dx=" // &
+            trim(dx_text) // &
             ", boundary='periodic','periodic','wall','wall'"
         if (kind == 'couette') text = text // ", wall_velocity(1,4)=2.5e-5"
         text = text // " /" // nl // "&fluid rho0=1000.0, nu=1.0e-6"
