@@ -11,7 +11,7 @@ module sph_schedule
     use sph_memory, only: peak_resident_bytes
     use sph_logger, only: log_info, fixed_text, int_text, sci_text
     use sph_rates, only: local_max_speed
-    use sph_reference, only: steady_after
+    use sph_reference, only: steady_after, error_percent_text
     use sph_stepper, only: simulation_t, simulation_write_snapshot, &
         simulation_write_checkpoint, simulation_analytic_error, fluid_density_range, &
         simulation_write_forces, simulation_log_forces, simulation_log_levels, &
@@ -310,11 +310,11 @@ contains
         error = simulation_analytic_error(sim, env)
         write(line, '(a,es12.5,a)') 'error against the analytic ' // &
             trim(sim%ref%name) // ' solution at t = ', sim%time, ' s: relative L2 = '
-        call log_info(trim(line) // ' ' // fixed_text(100.0_wp * error, 9, 5) // ' %')
+        call log_info(trim(line) // ' ' // error_percent_text(error, 9, 5))
         if (sim%time > steady_after(sim%ref)) then
             error = simulation_analytic_error(sim, env, steady=.true.)
             call log_info('error against the steady profile: relative L2 = ' // &
-                fixed_text(100.0_wp * error, 9, 5) // ' %')
+                error_percent_text(error, 9, 5))
         end if
     end subroutine schedule_final_report
 

@@ -346,8 +346,9 @@ module sph_stepper
         end subroutine simulation_log_levels
 
         !> Relative L2 error of the velocity of all fluid particles against the analytic
-        !> reference named by &run analytic (sph_reference; collective). Negative when there is
-        !> none.
+        !> reference named by &run analytic (sph_reference; collective). -1 when there is none,
+        !> -2 when the reference is below its series' round-off (the flow has barely started:
+        !> analytic_error_text says so).
         module real(wp) function simulation_analytic_error(sim, env, steady) result(error)
             type(simulation_t), intent(in) :: sim
             type(mpi_env_t), intent(in) :: env

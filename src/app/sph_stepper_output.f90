@@ -9,7 +9,8 @@ submodule (sph_stepper) sph_stepper_output
     use sph_mpi_env, only: global_min
     use sph_particles, only: KIND_VIRTUAL
     use sph_memory, only: peak_resident_bytes, startup_memory_bytes
-    use sph_reference, only: relative_l2_error, relative_l2_from_sums
+    use sph_reference, only: relative_l2_error, relative_l2_from_sums, reference_resolved, &
+        UNRESOLVED, error_percent_text
     use sph_snapshot, only: write_snapshot, SNAPSHOT_NOT_CLOSED
     use sph_checkpoint, only: write_checkpoint, checkpoint_filename
     use sph_xdmf, only: xdmf_index_entry, write_xdmf
@@ -295,12 +296,19 @@ contains
 
     module procedure simulation_analytic_error
         logical :: against_steady
+        real(wp) :: sums(2)
+        integer(i8) :: n_fluid
         error = -1.0_wp
         if (trim(sim%ref%name) == 'none') return
         against_steady = .false.
         if (present(steady)) against_steady = steady
-        error = relative_l2_from_sums(global_sum(env, &
-            relative_l2_error(sim%ref, sim%p, sim%time, against_steady)))
+        sums = global_sum(env, relative_l2_error(sim%ref, sim%p, sim%time, against_steady))
+        n_fluid = global_sum(env, int(count(sim%p%kind(1:sim%p%n_owned) == KIND_FLUID), i8))
+        error = UNRESOLVED
+        if (n_fluid > 0_i8) then
+            if (.not. reference_resolved(sim%ref, sqrt(sums(2) / real(n_fluid, wp)))) return
+        end if
+        error = relative_l2_from_sums(sums)
     end procedure simulation_analytic_error
 
     module procedure simulation_write_snapshot
@@ -336,7 +344,7 @@ contains
         if (trim(sim%ref%name) /= 'none' .and. sim%time > 0.0_wp) then
             error = simulation_analytic_error(sim, env)
             message = message // ' (L2 error vs analytic ' // &
-                fixed_text(100.0_wp * error, 8, 4) // ' %)'
+                error_percent_text(error, 8, 4) // ')'
         end if
         call log_info(message)
     end procedure simulation_write_snapshot
