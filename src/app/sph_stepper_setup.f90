@@ -4,6 +4,7 @@
 !> documentation are in sph_stepper.
 submodule (sph_stepper) sph_stepper_setup
     use sph_domain, only: domain_owner
+    use sph_mpi_env, only: rank0_flag
     use sph_logger, only: log_warn, int_text, sci_text
     use sph_text_lines, only: next_line
     use sph_filesystem, only: text_buffer_t
@@ -126,7 +127,10 @@ contains
         if (present(label)) what = label
         walls_changed = ''
         ! the checkpoint first: the run may go on at its spacing (given)
-        inquire(file=trim(from) // '/.', exist=is_directory)
+        is_directory = .false.
+        if (env%rank == 0) inquire(file=trim(from) // '/.', exist=is_directory)
+        ! (one answer for all: find_latest_checkpoint is collective)
+        is_directory = rank0_flag(env, is_directory)
         if (is_directory) then
             call find_latest_checkpoint(env, from, trim(cfg%run%case_name), path, skipped, stat, &
                 errmsg)

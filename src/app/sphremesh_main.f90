@@ -1,6 +1,6 @@
 !> sphremesh: mpirun -np N sphremesh INPUT.nml [--restart CHECKPOINT | --continue]
 program sphremesh_main
-    use sph_mpi_env, only: mpi_env_t, mpi_env_init_world, mpi_env_free
+    use sph_mpi_env, only: mpi_env_t, mpi_env_init_world, mpi_env_free, rank0_flag
     use sph_errors, only: fatal_collective, check_mpi, exit_process
     use sph_logger, only: logger_init, log_info, log_warning_summary
     use sph_command_line, only: options_t, parse_command_line, usage_text
@@ -88,7 +88,10 @@ contains
         logical :: exists, found
         integer :: list_stat
         found = .false.
-        inquire(file=trim(folder) // '/.', exist=exists)
+        exists = .false.
+        if (env%rank == 0) inquire(file=trim(folder) // '/.', exist=exists)
+        ! (one answer for all: has_checkpoint is collective)
+        exists = rank0_flag(env, exists)
         if (exists) then
             call has_checkpoint(env, trim(folder), trim(case_name), found, list_stat)
             if (list_stat /= 0) call fatal_collective('continue', "cannot list the " // &

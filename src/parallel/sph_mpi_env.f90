@@ -8,7 +8,7 @@ module sph_mpi_env
     private
     public :: mpi_env_t, mpi_env_init_world, mpi_env_from_comm, mpi_env_free, mpi_env_split
     public :: global_sum, global_max, global_min, broadcast_text, exclusive_scan_i8
-    public :: mpi_wp, mpi_i8, agreed_status, ranks_on_node
+    public :: mpi_wp, mpi_i8, agreed_status, ranks_on_node, rank0_flag
 
     type(MPI_Datatype), parameter :: mpi_wp = MPI_DOUBLE_PRECISION  !< matches sph_kinds%wp
     type(MPI_Datatype), parameter :: mpi_i8 = MPI_INTEGER8          !< matches sph_kinds%i8
@@ -221,6 +221,16 @@ contains
             call check_mpi(ierr, 'broadcast_text')
         end if
     end subroutine broadcast_text
+
+    !> Rank 0's flag on every rank (collective). For what each rank would otherwise ask the
+    !> file system for itself before a collective step: on a network file system one node's
+    !> cached answer (a folder made by the job before, not yet seen there) sent the ranks down
+    !> different paths, one of them into a collective call the others never made.
+    logical function rank0_flag(env, flag)
+        type(mpi_env_t), intent(in) :: env
+        logical, intent(in) :: flag
+        rank0_flag = global_max(env, merge(1_i8, 0_i8, env%rank == 0 .and. flag)) > 0_i8
+    end function rank0_flag
 
     !> The same status on every rank: the largest (collective).
     integer function agreed_status(env, stat)
