@@ -628,6 +628,11 @@ contains
             call shepard_density(sim%phys, sim%p, sim%nl)
         end if
         call refresh_ghosts(sim, env, HALO_DENSITY)
+        ! the refresh ends the table at the ghosts: the mirror images the list points at are
+        ! made again, in the same order, with the filtered densities (without them the Verlet
+        ! step's rates read past the table's end, and the predictor-corrector's next step
+        ! read stale images: 6 ranks 4e-5 from 1, fz33)
+        call build_mirrors(sim%phys, sim%solids, sim%p)
         call update_pressure(sim%phys, sim%p, 1, sim%p%n_total)
         call timers_leave(sim%timers, previous)
     end subroutine filter_density
