@@ -229,7 +229,7 @@ contains
     module procedure simulation_log_levels
         integer(i8), allocatable :: n_real(:), n_virtual(:), became(:), left(:)
         real(wp), allocatable :: mass(:), momentum(:, :), crossed(:)
-        real(wp) :: per_step, weight
+        real(wp) :: per_update, weight
         integer :: lv, n
         character(len=320) :: line
         if (.not. multires(sim)) return
@@ -240,12 +240,15 @@ contains
         left = global_sum(env, sim%level_stats%left(0:n - 1))
         crossed = global_sum(env, [sim%level_stats%mass_in(0:n - 1), &
             sim%level_stats%mass_out(0:n - 1)])
-        per_step = 1.0_wp / real(max(sim%level_stats%updates, 1_i8), wp)
+        ! (the zones are made anew when the particles have moved a twentieth of h, not every
+        ! step: the line said 'per step' for counts per update, fz34)
+        per_update = 1.0_wp / real(max(sim%level_stats%updates, 1_i8), wp)
         do lv = 0, n - 1
             write(line, '(a,i0,a,i0,a,i0,a,f8.3,a,f8.3,a,es16.9,a,a,a,2es10.3,a,3es11.3)') &
                 '  level ', lv, ': ', n_real(lv), ' real, ', n_virtual(lv), &
-                ' virtual; per step ', real(became(lv + 1), wp) * per_step, ' became real, ', &
-                real(left(lv + 1), wp) * per_step, ' left; real mass ', mass(lv), &
+                ' virtual; per zone update ', real(became(lv + 1), wp) * per_update, &
+                ' became real, ', real(left(lv + 1), wp) * per_update, ' left; real mass ', &
+                mass(lv), &
                 ' kg (drift ', drift_text(mass(lv), sim%first_level_mass(lv)), &
                 ', in/out since last line', crossed(lv + 1), &
                 crossed(n + lv + 1), '), momentum', momentum(:, lv)
