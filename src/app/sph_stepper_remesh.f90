@@ -6,8 +6,8 @@
 submodule (sph_stepper) sph_stepper_remesh
     use sph_logger, only: log_warn_counted, log_warn, sci_text, fixed_text, logger_is_root, &
         mb_text, int_text
-    use sph_physics, only: physics_from_config
-    use sph_walls, only: solids_from_config
+    use sph_physics, only: physics_from_config, WALLS_MORRIS
+    use sph_walls, only: solids_from_config, body_holds_site
     use sph_disorder_measure, only: nearest_distance_sums, disorder_from_sums
     use sph_snapshot, only: read_snapshot_header, read_snapshot_rows, SNAPSHOT_NOT_CLOSED
     use sph_checkpoint, only: write_checkpoint, stored_spacing
@@ -271,6 +271,7 @@ contains
         character(len=:), allocatable :: errmsg
         type(config_t) :: after
         type(physics_t) :: phys
+        type(solids_t) :: solids
         real(wp) :: side
         integer :: axis, stat
         problem = ''
@@ -297,6 +298,19 @@ contains
             write(text, '(a,es9.3,a,i0,a,es9.3,a)') 'the kernel support at the new spacing (', &
                 phys%kernel%support, ' m) exceeds half the periodic box on axis ', axis, &
                 ' (', side, ' m)'
+            problem = trim(text)
+            return
+        end do
+        ! Morris walls laid again at the new spacing: a body must still hold a site (a circle
+        ! of 0.6 dx holds one at dx but may hold none at 2 dx: the run went on without it)
+        if (phys%walls /= WALLS_MORRIS .or. .not. allocated(cfg%bodies)) return
+        solids = solids_from_config(after)
+        do axis = 1, size(cfg%bodies)
+            if (body_holds_site(after, solids, axis, dx_new)) cycle
+            write(text, '(a,i0,a,es9.3,a)') '&body ', axis, " ('" // &
+                trim(cfg%bodies(axis)%name) // "') would hold no site of the lattice at the " // &
+                'new spacing (', dx_new, " m), so with wall_model = 'morris' it would have no " // &
+                'wall particle'
             problem = trim(text)
             return
         end do

@@ -13,6 +13,7 @@ submodule (sph_stepper) sph_stepper_setup
     use sph_initial, only: lattice_mass_factor
     use sph_particles, only: KIND_WALL
     use sph_physics, only: WALLS_MORRIS
+    use sph_walls, only: body_holds_site
     implicit none
 
 contains
@@ -472,7 +473,9 @@ contains
     !> Morris walls are the lattice sites inside a solid: a body that holds none (a circle
     !> of radius 0.55 dx between four sites, a plate half a spacing thick between two rows)
     !> gets no wall particle, and the run went on without it, its force exactly 0. Refused,
-    !> naming the body and what would hold a site wherever it lies (collective).
+    !> naming the body and what would hold a site wherever it lies (collective). A body with
+    !> no wall particle of its own that does hold sites (inside another body, which takes
+    !> them) is the input's choice. Multi-resolution: the particles of every level count.
     subroutine check_bodies_hold_sites(sim, env, cfg)
         type(simulation_t), intent(in) :: sim
         type(mpi_env_t), intent(in) :: env
@@ -495,6 +498,7 @@ contains
         held = global_sum(env, held)
         do b = 1, n_bodies
             if (held(b) > 0_i8) cycle
+            if (body_holds_site(cfg, sim%solids, b, cfg%domain%dx)) cycle
             select case (trim(cfg%bodies(b)%shape))
             case ('circle', 'cylinder')
                 need = 'a radius of at least dx / sqrt(2) (' // &

@@ -23,6 +23,7 @@ module sph_walls
     private
     public :: solids_from_config, wall_layers, wall_lattice_ranges, wall_site, build_mirrors
     public :: body_surface_sites, clear_of_solids, fluid_position, FLUID_CLEARANCE
+    public :: body_holds_site
 
     !> Least distance, in spacings, of a fluid particle of the initial lattice from a solid,
     !> that of the first row at a plane wall. The sites a curved surface cuts lie at any
@@ -268,6 +269,55 @@ contains
             distance = -solid_distance(solids%list(solid), x)
         end if
     end subroutine wall_site
+
+    !> Whether a site of the lattice of spacing dx (box_lo + (i - 1/2) dx per axis, the
+    !> set-up's and a remesh's walls) lies inside or on body b of cfg (Morris walls are the
+    !> sites inside a solid: a body that holds none has no wall particle, no effect on the
+    !> flow and no force). Geometry only: a site that a deeper solid takes (a body inside
+    !> another) still counts.
+    function body_holds_site(cfg, solids, b, dx) result(holds)
+        type(config_t), intent(in) :: cfg
+        type(solids_t), intent(in) :: solids
+        integer, intent(in) :: b
+        real(wp), intent(in) :: dx
+        logical :: holds
+        real(wp) :: lo(3), hi(3), x(3)
+        integer :: first(3), last(3), i, j, k, dim, s, a, idx(3)
+        dim = cfg%domain%dimension
+        ! the bodies follow the box's planes in the solids' list, in input order
+        s = size(solids%list) - size(cfg%bodies) + b
+        associate (body => cfg%bodies(b))
+            select case (trim(body%shape))
+            case ('rectangle', 'box')
+                lo = body%lo
+                hi = body%hi
+            case default
+                lo = body%centre - body%radius
+                hi = body%centre + body%radius
+            end select
+            first = 1
+            last = 1
+            do a = 1, dim
+                ! (a cylinder is the same all along its axis: one row of sites across it)
+                if (trim(body%shape) == 'cylinder' .and. achar(iachar('w') + a) == body%axis) &
+                    cycle
+                first(a) = floor((lo(a) - cfg%domain%box_lo(a)) / dx + 0.5_wp)
+                last(a) = ceiling((hi(a) - cfg%domain%box_lo(a)) / dx + 0.5_wp)
+            end do
+        end associate
+        holds = .true.
+        x = 0.0_wp
+        do k = first(3), last(3)
+            do j = first(2), last(2)
+                do i = first(1), last(1)
+                    idx = [i, j, k]
+                    x(1:dim) = cfg%domain%box_lo(1:dim) + (real(idx(1:dim), wp) - 0.5_wp) * dx
+                    if (solid_distance(solids%list(s), x) <= 1.0e-6_wp * dx) return
+                end do
+            end do
+        end do
+        holds = .false.
+    end function body_holds_site
 
     !> Append type-2 mirror images of the fluid particles (owned and ghosts) lying within the
     !> kernel support of a solid: across each such solid, and across every combination of
