@@ -13,8 +13,8 @@ submodule (sph_stepper) sph_stepper_remesh
     use sph_checkpoint, only: write_checkpoint, stored_spacing
     use sph_read_checks, only: check_read_particles, check_fluid_outside_solids
     use sph_remesh_driver, only: remesh_report_t, remesh_fluid, remesh_mode_code, &
-        remesh_spacing_factor, fluid_mass_momentum, restore_momentum, restore_energy, accurate_sum, &
-        REMESH_NONE, REMESH_REFINE, REMESH_COARSEN, REMESH_SAME, NARROW_GAP
+        remesh_spacing_factor, fluid_mass_momentum, restore_momentum, restore_energy, &
+        accurate_sum, REMESH_NONE, REMESH_REFINE, REMESH_COARSEN, REMESH_SAME, NARROW_GAP
     use sph_rates, only: compute_summation_density
     use sph_particles, only: HALO_GHOST
     use sph_errors, only: STATUS_OUTPUT_FAILED
@@ -308,9 +308,9 @@ contains
         do axis = 1, size(cfg%bodies)
             if (body_holds_site(after, solids, axis, dx_new)) cycle
             write(text, '(a,i0,a,es9.3,a)') '&body ', axis, " ('" // &
-                trim(cfg%bodies(axis)%name) // "') would hold no site of the lattice at the " // &
-                'new spacing (', dx_new, " m), so with wall_model = 'morris' it would have no " // &
-                'wall particle'
+                trim(cfg%bodies(axis)%name) // "') would hold no site of the lattice at " // &
+                'the new spacing (', dx_new, " m), so with wall_model = 'morris' it would " // &
+                'have no wall particle'
             problem = trim(text)
             return
         end do

@@ -3,7 +3,8 @@
 !> (sph_domain_input find_analytic_channel, the same rule the input check applies): the wall
 !> normal is the axis whose two faces are walls, the flow runs along the body force or the
 !> moving wall's velocity. The problem is linear, so a Couette channel with a body force along
-!> the flow (Couette-Poiseuille) has the sum of both series as its exact solution. No MPI here: the driver sums the partial error sums over ranks.
+!> the flow (Couette-Poiseuille) has the sum of both series as its exact solution. No MPI
+!> here: the driver sums the partial error sums over ranks.
 module sph_reference
     use sph_kinds, only: wp
     use sph_config, only: config_t

@@ -223,9 +223,10 @@ contains
         !> A periodic side must hold two kernel supports: a particle would otherwise meet
         !> its own periodic image within its support.
         subroutine check_periodic_sides()
-            character(len=16) :: support, side, fit
-            integer :: axis
-            real(wp) :: dx
+            character(len=16) :: support, side, form
+            character(len=32) :: fit
+            integer :: axis, digits
+            real(wp) :: dx, shortest
             dx = cfg%domain%dx
             if (.not. dx > 0.0_wp) return
             do axis = 1, min(max(cfg%domain%dimension, 2), 3)
@@ -234,9 +235,14 @@ contains
                     2.0_wp * kernel_support_at(dx)) cycle
                 write(support, '(es10.3)') kernel_support_at(dx)
                 write(side, '(es10.3)') cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis)
-                ! the shortest side of whole spacings that holds two supports
-                write(fit, '(es10.3)') cfg%domain%box_lo(axis) + dx * &
+                ! the box_hi of the shortest side of whole spacings that holds two supports, with
+                ! as many digits as tell it from box_lo (a box far from the origin)
+                shortest = cfg%domain%box_lo(axis) + dx * &
                     real(ceiling(2.0_wp * kernel_support_at(dx) / dx - 1.0e-9_wp), wp)
+                digits = min(15, max(4, 3 + ceiling(log10(max(abs(cfg%domain%box_lo(axis)), &
+                    abs(shortest), dx) / dx))))
+                write(form, '(a,i0,a,i0,a)') '(es', digits + 8, '.', digits, ')'
+                write(fit, form) shortest
                 call grp(3)%error('box_hi(' // achar(iachar('0') + axis) // ')', &
                     'the periodic side on axis ' // achar(iachar('0') + axis) // ' is ' // &
                     trim(adjustl(side)) // ' m, less than two kernel supports (2 x ' // &

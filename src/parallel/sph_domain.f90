@@ -2,8 +2,9 @@
 !> 2D and 3D. Cuts are placed by particle count (each particle is one unit of work whatever
 !> its resolution level, so a region of fine particles gets proportionally more ranks), and
 !> the tree answers "which rank owns this position" in O(log P). Also particle migration.
-!> Wall faces are open-ended: a subdomain touching a wall extends to infinity there, so wall
-!> particles outside the fluid box belong to the rank next to them.
+!> Wall faces are open-ended: the outermost subdomains along a wall axis (no cut bounds them
+!> on that side) extend to infinity there, so wall particles outside the fluid box belong to
+!> the rank next to them.
 module sph_domain
     use mpi_f08
     use sph_kinds, only: wp, i8
