@@ -14,7 +14,6 @@ submodule (sph_stepper) sph_stepper_shared
     use sph_physics, only: physics_from_config, VISCOSITY_STRAIN_RATE, WALLS_MORRIS, &
         WALL_PRESSURE_EXTRAPOLATED, stiffest_viscosity
     use sph_walls, only: solids_from_config
-    use sph_solids, only: SOLID_RECTANGLE, SOLID_BOX
     use sph_domain, only: domain_create, migrate_particles
     use sph_halo, only: halo_refresh
     use sph_rates, only: compute_summation_density, compute_strain_rate, compute_rates, &
@@ -379,27 +378,13 @@ contains
     end procedure next_multiple
 
     module procedure halo_reach
-        integer :: k
         reach = sim%phys%kernel%support + sim%skin + sim%list_skin
         if (sim%zones%n_levels > 1) reach = max(reach, 2.0_wp * &
             sqrt(real(sim%cfg%domain%dimension, wp)) * sim%cfg%domain%dx + sim%skin + &
             sim%list_skin)
-        ! a mirror image through a body's convex corner (sph_walls build_mirrors) lies up to a
-        ! support beyond the corner from a source a support before it, and acts on fluid a
-        ! support further: along the next face, up to three supports from its source. With
-        ! sources within one support of a rank's part, a rank next to a cut near the corner
-        ! lacked those images (2 ranks 5e-2 of the peak speed from 1 after one step, fz33).
-        ! A wall's own images and a box's concave corners lie closer to their sources than to
-        ! any fluid they act on.
-        if (sim%phys%walls /= WALLS_MIRROR .and. sim%phys%walls /= WALLS_REPULSIVE_MIRROR) &
-            return
-        if (.not. allocated(sim%solids%list)) return
-        do k = 1, size(sim%solids%list)
-            if (sim%solids%list(k)%shape /= SOLID_RECTANGLE .and. &
-                sim%solids%list(k)%shape /= SOLID_BOX) cycle
-            reach = max(reach, 3.0_wp * sim%phys%kernel%support + sim%skin + sim%list_skin)
-            return
-        end do
+        ! (mirror images of the box's plane walls, and through its concave corners, lie
+        ! nearer their sources than any fluid they act on; bodies, whose convex corners would
+        ! need three supports, are refused with mirror walls: sph_body_input)
     end procedure halo_reach
 
     module procedure hold_real_mass

@@ -167,7 +167,7 @@ contains
         call read_refinement_input(grp(10), cfg%refinement)
         call read_region_inputs(regions, cfg%domain, cfg%bodies, cfg%regions)
         if (sum(grp%n_errors) == 0) call check_body_wall_model(bodies, cfg%bodies, &
-            cfg%numerics%wall_model, cfg%domain%dimension, kernel_support_at(cfg%domain%dx))
+            cfg%numerics%wall_model)
         if (sum(grp%n_errors) == 0) call check_moving_corners(grp(5), grp(4), cfg%domain, &
             cfg%numerics, cfg%fluid)
         ! (a 2D flow has no third component: given, it moved nothing)
