@@ -273,7 +273,7 @@ contains
         type(physics_t) :: phys
         type(solids_t) :: solids
         real(wp) :: side
-        integer :: axis, stat
+        integer :: axis, stat, body
         problem = ''
         axis = misfit_axis(cfg%domain, dx_new)
         if (axis /= 0) then
@@ -305,10 +305,10 @@ contains
         ! of 0.6 dx holds one at dx but may hold none at 2 dx: the run went on without it)
         if (phys%walls /= WALLS_MORRIS .or. .not. allocated(cfg%bodies)) return
         solids = solids_from_config(after)
-        do axis = 1, size(cfg%bodies)
-            if (body_holds_site(after, solids, axis, dx_new)) cycle
-            write(text, '(a,i0,a,es9.3,a)') '&body ', axis, " ('" // &
-                trim(cfg%bodies(axis)%name) // "') would hold no site of the lattice at " // &
+        do body = 1, size(cfg%bodies)
+            if (body_holds_site(after, solids, body, dx_new)) cycle
+            write(text, '(a,i0,a,es9.3,a)') '&body ', body, " ('" // &
+                trim(cfg%bodies(body)%name) // "') would hold no site of the lattice at " // &
                 'the new spacing (', dx_new, " m), so with wall_model = 'morris' it would " // &
                 'have no wall particle'
             problem = trim(text)

@@ -9,7 +9,7 @@ module sph_domain_input
     private
     public :: domain_input_t, read_domain_input, check_analytic_channel
     public :: channel_t, find_analytic_channel
-    public :: n_faces, face_names, misfit_axis
+    public :: n_faces, face_names, misfit_axis, lattice_coordinate_text
 
     integer, parameter :: n_faces = 6, name_len = 32, path_len = 512
     !> Smallest dx as a fraction of a box length (10^9 particles along an axis).
@@ -191,22 +191,18 @@ contains
         type(domain_input_t), intent(in) :: dom
         integer, intent(in) :: axis
         character(len=:), allocatable :: text
-        character(len=24) :: ratio, below, above, grain
-        character(len=16) :: form
+        character(len=24) :: ratio, grain
         character(len=1) :: a
-        real(wp) :: cells, resolution
-        integer :: digits
+        real(wp) :: cells, resolution, below, above
         a = achar(iachar('0') + axis)
         cells = (dom%box_hi(axis) - dom%box_lo(axis)) / dom%dx
         write(ratio, '(f0.6)') cells
-        ! as many digits as tell the two apart (a spacing of a box far from the origin)
-        digits = min(15, max(4, 3 + ceiling(log10(max(abs(dom%box_lo(axis)), &
-            abs(dom%box_hi(axis)), dom%dx) / dom%dx))))
-        write(form, '(a,i0,a,i0,a)') '(es', digits + 8, '.', digits, ')'
-        write(below, form) dom%box_lo(axis) + dom%dx * real(max(floor(cells), 1), wp)
-        write(above, form) dom%box_lo(axis) + dom%dx * real(max(ceiling(cells), 2), wp)
+        below = dom%box_lo(axis) + dom%dx * real(max(floor(cells), 1), wp)
+        above = dom%box_lo(axis) + dom%dx * real(max(ceiling(cells), 2), wp)
+        ! (each with the digits of the other too: the two read alike)
         text = 'it holds ' // trim(adjustl(ratio)) // ' spacings; box_hi(' // a // ') = ' // &
-            trim(adjustl(below)) // ' or ' // trim(adjustl(above)) // ' m fits'
+            lattice_coordinate_text(below, above, dom%dx) // ' or ' // &
+            lattice_coordinate_text(above, below, dom%dx) // ' m fits'
         ! a position there is known to one unit in the last place of the box's coordinates
         resolution = spacing(max(abs(dom%box_lo(axis)), abs(dom%box_hi(axis)))) / dom%dx
         if (resolution > 1.0e-4_wp) then
@@ -215,6 +211,21 @@ contains
                 'known to ' // trim(adjustl(grain)) // ' dx only: move it nearer to 0)'
         end if
     end function misfit_text
+
+    !> A coordinate x of a lattice of spacing dx, with as many digits as tell its planes apart
+    !> at x and at the coordinate `near` (a box far from the origin: 1.00030000E+00, not
+    !> 1.000E+00).
+    function lattice_coordinate_text(x, near, dx) result(text)
+        real(wp), intent(in) :: x, near, dx
+        character(len=:), allocatable :: text
+        character(len=32) :: buffer
+        character(len=16) :: form
+        integer :: digits
+        digits = min(15, max(4, 3 + ceiling(log10(max(abs(near), abs(x), dx) / dx))))
+        write(form, '(a,i0,a,i0,a)') '(es', digits + 8, '.', digits, ')'
+        write(buffer, form) x
+        text = trim(adjustl(buffer))
+    end function lattice_coordinate_text
 
     !> The first axis in use whose box length is not a whole multiple of dx; 0 when none.
     pure integer function misfit_axis(dom, dx) result(axis)

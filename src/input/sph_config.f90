@@ -10,7 +10,7 @@ module sph_config
     use sph_namelist, only: nml_file_t, nml_group_t, nml_key_t, nml_parse
     use sph_run_input, only: run_input_t, output_input_t, read_run_input, read_output_input
     use sph_domain_input, only: domain_input_t, read_domain_input, check_analytic_channel, &
-        misfit_axis, n_faces, face_names
+        misfit_axis, n_faces, face_names, lattice_coordinate_text
     use sph_physics_input, only: fluid_input_t, numerics_input_t, read_fluid_input, &
         read_numerics_input, check_moving_corners
     use sph_parallel_input, only: parallel_input_t, read_parallel_input
@@ -230,9 +230,8 @@ contains
         !> A periodic side must hold two kernel supports: a particle would otherwise meet
         !> its own periodic image within its support.
         subroutine check_periodic_sides()
-            character(len=16) :: support, side, form
-            character(len=32) :: fit
-            integer :: axis, digits
+            character(len=16) :: support, side
+            integer :: axis
             real(wp) :: dx, shortest
             dx = cfg%domain%dx
             if (.not. dx > 0.0_wp) return
@@ -242,20 +241,16 @@ contains
                     2.0_wp * kernel_support_at(dx)) cycle
                 write(support, '(es10.3)') kernel_support_at(dx)
                 write(side, '(es10.3)') cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis)
-                ! the box_hi of the shortest side of whole spacings that holds two supports, with
-                ! as many digits as tell it from box_lo (a box far from the origin)
+                ! the box_hi of the shortest side of whole spacings that holds two supports
                 shortest = cfg%domain%box_lo(axis) + dx * &
                     real(ceiling(2.0_wp * kernel_support_at(dx) / dx - 1.0e-9_wp), wp)
-                digits = min(15, max(4, 3 + ceiling(log10(max(abs(cfg%domain%box_lo(axis)), &
-                    abs(shortest), dx) / dx))))
-                write(form, '(a,i0,a,i0,a)') '(es', digits + 8, '.', digits, ')'
-                write(fit, form) shortest
                 call grp(3)%error('box_hi(' // achar(iachar('0') + axis) // ')', &
                     'the periodic side on axis ' // achar(iachar('0') + axis) // ' is ' // &
                     trim(adjustl(side)) // ' m, less than two kernel supports (2 x ' // &
                     trim(adjustl(support)) // ' m at dx with &numerics kernel and ' // &
                     'h_factor), so a particle would meet its own image; box_hi(' // &
-                    achar(iachar('0') + axis) // ') = ' // trim(adjustl(fit)) // &
+                    achar(iachar('0') + axis) // ') = ' // &
+                    lattice_coordinate_text(shortest, cfg%domain%box_lo(axis), dx) // &
                     ' m or more, or a smaller dx')
             end do
         end subroutine check_periodic_sides
