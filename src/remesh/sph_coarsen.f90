@@ -161,6 +161,10 @@ contains
         integer, allocatable :: fill_order(:)
         real(wp), allocatable :: near_kept2(:)
         integer :: n_fill_order
+        !> each candidate k's earlier candidates (by their place in fill_order) and squared
+        !> distances: earlier(estart(k):estart(k + 1) - 1), earlier_r2 alike
+        integer, allocatable :: estart(:), earlier(:)
+        real(wp), allocatable :: earlier_r2(:)
         integer :: depth
 
         if (present(stat)) stat = 0
@@ -290,29 +294,33 @@ contains
         !> tag and n_kept updated.
         subroutine fill_to_target(want)
             integer, intent(in) :: want
-            logical, allocatable :: keep(:), best(:)
+            logical, allocatable :: keep(:), best(:), best_fill(:)
             real(wp) :: lo, hi, r_fill
-            integer :: step, n_fill
+            integer :: step, n_fill, n_class
             integer, allocatable :: added(:), ord(:)
             integer(i8), allocatable :: hk(:, :)
-            allocate(best(n))
             call fill_candidates()
+            n_class = count(tag(1:n) == KEPT_CLASS)
             lo = R_FILL_MIN * dx
             hi = r_conflict
             call fill(lo, keep, n_fill)
-            best = keep
+            n_fill = n_fill + n_class
+            best_fill = keep
             if (n_fill >= want) then
                 do step = 1, FILL_STEPS
                     r_fill = 0.5_wp * (lo + hi)
                     call fill(r_fill, keep, n_fill)
+                    n_fill = n_fill + n_class
                     if (n_fill >= want) then
                         lo = r_fill
-                        best = keep
+                        best_fill = keep
                     else
                         hi = r_fill
                     end if
                 end do
             end if
+            best = tag(1:n) == KEPT_CLASS
+            best(fill_order(1:n_fill_order)) = best_fill(1:n_fill_order)
             ! r_fill can add many at once (a lattice whose parity is inconsistent: the
             ! diagonals come free together): keep want, dropping the added particles with
             ! the largest id hashes, so that no region is preferred
@@ -332,54 +340,87 @@ contains
 
         !> The particles a fill may add, in tagging order (fill_order), with the squared
         !> distance to their nearest class 1 neighbour (near_kept2): one with a class 1
-        !> particle closer than R_FILL_MIN dx is never free. A fill pass at r then skips
-        !> at once those whose nearest class 1 neighbour lies within r, and reads the
-        !> adjacency of the rest only: the same test, as every class 1 neighbour lies at
-        !> least that far (the fill's 21 passes over every particle in hashed order were
-        !> half of a disordered set's selection).
+        !> particle closer than R_FILL_MIN dx is never free (every fill radius is at least
+        !> that). A fill pass at r then skips at once those whose nearest class 1 neighbour
+        !> lies within r; the rest can be blocked only by a candidate before them in the
+        !> order (a later one is not decided yet, and no other particle is ever added), so
+        !> each candidate's earlier candidates are listed once here (estart, earlier,
+        !> earlier_r2), and the passes read those short lists in order instead of the whole
+        !> adjacency at hashed places in memory (the fill's 21 passes over every particle in
+        !> hashed order were half of a disordered set's selection; then, over the
+        !> adjacency of the candidates, a quarter of a same-level remesh of 10^5 jittered
+        !> particles).
         subroutine fill_candidates()
-            integer :: kk, ii, pp, nf
+            integer :: kk, ii, pp, nf, jj, ne, ne_row
+            integer, allocatable :: place(:), more(:)
+            real(wp), allocatable :: more_r2(:)
             real(wp) :: d2
-            allocate(near_kept2(n), fill_order(n))
+            allocate(near_kept2(n), fill_order(n), place(n), estart(n + 1))
+            allocate(earlier(max(n, 1)), earlier_r2(max(n, 1)))
+            place = 0
             nf = 0
+            ne = 0
+            ! one sweep over the adjacency: a particle's earlier candidates are those placed
+            ! already (the order is the sweep's); its row is dropped again when it turns out
+            ! no candidate itself
             do kk = 1, n
                 ii = order(kk)
                 if (tag(ii) == KEPT_CLASS) cycle
+                if (ne + astart(ii + 1) - astart(ii) > size(earlier)) then
+                    allocate(more(2 * (ne + astart(ii + 1) - astart(ii))))
+                    more(1:ne) = earlier(1:ne)
+                    call move_alloc(more, earlier)
+                    allocate(more_r2(size(earlier)))
+                    more_r2(1:ne) = earlier_r2(1:ne)
+                    call move_alloc(more_r2, earlier_r2)
+                end if
                 d2 = huge(1.0_wp)
+                ne_row = ne
                 do pp = astart(ii), astart(ii + 1) - 1
                     if (tag(adj(pp)) == KEPT_CLASS) d2 = min(d2, adj_r2(pp))
+                    jj = place(adj(pp))
+                    if (jj > 0) then
+                        ne_row = ne_row + 1
+                        earlier(ne_row) = jj
+                        earlier_r2(ne_row) = adj_r2(pp)
+                    end if
                 end do
                 near_kept2(ii) = d2
                 if (d2 < (R_FILL_MIN * dx)**2) cycle
                 nf = nf + 1
                 fill_order(nf) = ii
+                place(ii) = nf
+                estart(nf) = ne + 1
+                ne = ne_row
             end do
             n_fill_order = nf
+            estart(nf + 1) = ne + 1
         end subroutine fill_candidates
 
-        !> Class 1 plus, in tagging order, every particle with no kept particle within r
-        !> (fill_candidates).
+        !> Which candidates (by their place in fill_order) a fill at radius r adds, and how
+        !> many: in order, each with no kept particle within r (fill_candidates).
         subroutine fill(r, keep, n_keep)
             real(wp), intent(in) :: r
             logical, allocatable, intent(inout) :: keep(:)
             integer, intent(out) :: n_keep
             integer :: kk, ii, pp
             logical :: free
-            if (.not. allocated(keep)) allocate(keep(n))
-            keep = tag(1:n) == KEPT_CLASS
+            if (.not. allocated(keep)) allocate(keep(max(n_fill_order, 1)))
+            n_keep = 0
             do kk = 1, n_fill_order
                 ii = fill_order(kk)
+                keep(kk) = .false.
                 if (near_kept2(ii) < r * r) cycle
                 free = .true.
-                do pp = astart(ii), astart(ii + 1) - 1
-                    if (keep(adj(pp)) .and. adj_r2(pp) < r * r) then
+                do pp = estart(kk), estart(kk + 1) - 1
+                    if (keep(earlier(pp)) .and. earlier_r2(pp) < r * r) then
                         free = .false.
                         exit
                     end if
                 end do
-                keep(ii) = free
+                keep(kk) = free
+                if (free) n_keep = n_keep + 1
             end do
-            n_keep = count(keep)
         end subroutine fill
 
         !> pstart/pred: each particle's tagging neighbours before it in the order; with
