@@ -93,7 +93,7 @@ module sph_remesh_driver
     use sph_remesh_images, only: relative_to, mirror_shifts, with_mirrors
     use sph_remesh_positions, only: new_set_t, new_set_init, set_aside_gaps, new_positions, &
         finish_same_level, into_id_order, REMESH_NONE, REMESH_REFINE, REMESH_COARSEN, &
-        REMESH_SAME, NARROW_GAP
+        REMESH_SAME, NARROW_GAP, snapped_to_grid
     use sph_remesh_interp, only: transfer_accumulate, transfer_finish, transfer_rows, &
         transfer_unreached
     use sph_global_ids, only: assign_global_ids, global_max_id
@@ -200,7 +200,7 @@ contains
         !> particle is isolated (for tests: the result agrees with the default's to round-off)
         logical, intent(in), optional :: all_ghosts
         type(new_set_t) :: set
-        integer :: my_stat
+        integer :: my_stat, i
         integer(i8) :: base
         real(wp) :: t0, t_transfer, ghost_ratio
         character(len=:), allocatable :: message
@@ -213,6 +213,12 @@ contains
         ghost_ratio = real(max(p%n_total, 1), wp) / real(max(p%n_owned, 1), wp)
         ! totals before, over all ranks
         fluid = p%kind(1:p%n_owned) == KIND_FLUID
+        ! the old positions on a grid, so that every decision below is the same on any rank
+        ! count (sph_remesh_positions' snapped_to_grid)
+        do i = 1, p%n_owned
+            if (fluid(i)) p%x(:, i) = snapped_to_grid(p%x(:, i), dim, dx, box_lo, box_hi, &
+                periodic)
+        end do
         report%n_before = global_sum(env, int(count(fluid), i8))
         call fluid_mass_momentum(env, p, report%mass_before, report%momentum_before, &
             report%energy_before)
