@@ -82,6 +82,7 @@ module sph_remesh_driver
         MPI_Wtime
     use sph_kinds, only: wp, i8
     use sph_errors, only: check_mpi
+    use sph_accurate_sums, only: accurate_add, accurate_sum
     use sph_mpi_env, only: mpi_env_t, mpi_wp, mpi_i8, global_sum, global_max, agreed_status, &
         broadcast_text
     use sph_particles, only: particles_t, particles_init, particles_reserve, particles_clear, &
@@ -597,34 +598,6 @@ contains
         end do
         totals = totals + lost
     end subroutine fluid_totals
-
-    !> sum + x with the rounding error of the addition kept in lost (Neumaier's compensated
-    !> summation: the result is sum + lost, exact to about one rounding whatever the count).
-    pure subroutine accurate_add(sum, lost, x)
-        real(wp), intent(inout) :: sum, lost
-        real(wp), intent(in) :: x
-        real(wp) :: t
-        t = sum + x
-        if (abs(sum) >= abs(x)) then
-            lost = lost + ((sum - t) + x)
-        else
-            lost = lost + ((x - t) + sum)
-        end if
-        sum = t
-    end subroutine accurate_add
-
-    !> The sum of values, compensated (accurate_add).
-    pure real(wp) function accurate_sum(values) result(total)
-        real(wp), intent(in) :: values(:)
-        real(wp) :: lost
-        integer :: i
-        total = 0.0_wp
-        lost = 0.0_wp
-        do i = 1, size(values)
-            call accurate_add(total, lost, values(i))
-        end do
-        total = total + lost
-    end function accurate_sum
 
     !> One uniform velocity added to the particles sel(1:size(sel)) of p (collective) so
     !> that their total momentum becomes `momentum`, their total mass being `mass`: a

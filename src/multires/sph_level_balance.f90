@@ -26,6 +26,7 @@ module sph_level_balance
     use sph_kinds, only: wp
     use sph_particles, only: particles_t, KIND_FLUID, KIND_WALL, KIND_VIRTUAL
     use sph_cell_list, only: neighbour_list_t
+    use sph_accurate_sums, only: accurate_add
     implicit none
     private
     public :: PUSH_SUMS, mark_near_virtual, level_push_sums, remove_virtual_push
@@ -104,10 +105,20 @@ contains
         end do
     end subroutine remove_virtual_push
 
-    !> Mass of the owned real fluid particles, every level.
+    !> Mass of the owned real fluid particles, every level, compensated: the levels' mass
+    !> factor is its ratio to a reference, and with a plain sum the factor's rounding
+    !> followed the partition (4 ranks against 1: masses 1.5e-14 apart after 200 steps, a
+    !> wall's force 1.6e-10 of its peak; fz37).
     pure real(wp) function real_fluid_mass(p) result(mass)
         type(particles_t), intent(in) :: p
-        mass = sum(p%m(1:p%n_owned), mask=p%kind(1:p%n_owned) == KIND_FLUID)
+        real(wp) :: lost
+        integer :: i
+        mass = 0.0_wp
+        lost = 0.0_wp
+        do i = 1, p%n_owned
+            if (p%kind(i) == KIND_FLUID) call accurate_add(mass, lost, p%m(i))
+        end do
+        mass = mass + lost
     end function real_fluid_mass
 
     !> m *= factor for the owned real fluid and wall particles: the levels' unit of mass.
