@@ -265,7 +265,8 @@ contains
             if (.not. refused) return
             reporter = int(-global_max(env, int(merge(-env%rank, -huge(0), my_stat /= 0), i8)))
             call broadcast_text(env, message, reporter)
-            errmsg = 'remesh: ' // message
+            ! (the caller names the stage: 'error in remesh: ...')
+            errmsg = message
         end function refused
 
 

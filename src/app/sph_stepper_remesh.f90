@@ -529,6 +529,16 @@ contains
                 '--remesh takes a single-resolution state (the resolution of regions is set ' // &
                 'by their &region groups, doc/multiresolution.md); nothing written')
         end if
+        ! a new spacing longer than a side of the box leaves no room for one particle (the
+        ! transfer then blamed a narrow gap between solids: a cavity coarsened five times)
+        do k = 1, cfg%domain%dimension
+            if (cfg%domain%dx * remesh_spacing_factor(mode) <= cfg%domain%box_hi(k) - &
+                cfg%domain%box_lo(k)) cycle
+            write(number, '(es10.3)') cfg%domain%dx * remesh_spacing_factor(mode)
+            call fatal_collective('remesh', 'the new spacing (' // trim(adjustl(number)) // &
+                " m) is longer than the box on axis " // achar(iachar('0') + k) // &
+                ': no particle fits; nothing written')
+        end do
         ! OUT is still written (its particles are what the rules make, for study), but no run
         ! can continue it: say so before the work
         problem = spacing_problem(cfg, mode)

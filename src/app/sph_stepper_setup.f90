@@ -113,7 +113,7 @@ contains
         character(len=:), allocatable :: path, skipped, errmsg, stored_input, index_text
         character(len=:), allocatable :: mismatch
         type(config_t) :: stored
-        integer :: stat, fluid_stat
+        integer :: stat, fluid_stat, check_stat
         logical :: same_layout, is_directory
         character(len=256) :: line
         real(wp) :: stored_dx
@@ -159,11 +159,6 @@ contains
                 'state (particles of finer levels and virtual particles): it continues with ' // &
                 'an input that has its &region groups (the input stored in it has them)')
         end if
-        ! values no run writes (a file edited or damaged outside sphremesh) stop here, not
-        ! later as a floating-point trap, an index out of range or a hang
-        call check_read_particles(env, sim%p, sim%zones%n_levels, size(sim%solids%list), &
-            path, stat, errmsg)
-        if (stat /= 0) call fatal_collective(what, errmsg)
         ! the levels' balance as the checkpointed run had it (the reference mass, and for
         ! sub-cycled levels the pushes of the levels not evaluated at the next step), and
         ! the zones' drift (checkpoints written before it was kept: none, the zones then
@@ -228,10 +223,25 @@ contains
                     '(its input is stored in it)')
             end if
         end if
+        ! values no run writes (a file edited or damaged outside sphremesh) stop here, not
+        ! later as a floating-point trap, an index out of range or a hang; after the
+        ! geometry's refusals: another case's checkpoint has wall particles of solids the
+        ! input lacks, and was called damaged (fz38)
+        call check_read_particles(env, sim%p, sim%zones%n_levels, size(sim%solids%list), &
+            path, check_stat, errmsg)
+        if (check_stat /= 0) call fatal_collective(what, errmsg)
         ! a remeshed (refined or coarsened) checkpoint holds particles of another spacing:
         ! the input must say so (kernel, masses of new walls, time step follow from dx),
         ! unless take_remeshed_spacing took it
         if (stored_dx > 0.0_wp .and. abs(stored_dx - given%domain%dx) > 1.0e-9_wp * stored_dx) then
+            ! (at a spacing where no run can go on, that advice led to the next refusal)
+            mismatch = spacing_problem_at(given, stored_dx)
+            if (len(mismatch) > 0) then
+                write(line, '(a,es14.8,a)') "the checkpoint's particles have spacing dx = ", &
+                    stored_dx, ' m, at which no run of this input can go on'
+                call fatal_collective(what, trim(line) // ' (' // mismatch // '): a remesh ' &
+                    // 'wrote it for study, and no run continues it')
+            end if
             write(line, '(a,es15.8,a,es15.8,a)') "the checkpoint's particles have spacing " // &
                 'dx = ', stored_dx, ' m but &domain dx = ', given%domain%dx, &
                 ' m; set &domain dx to the checkpoint''s spacing to continue from it'

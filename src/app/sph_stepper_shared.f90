@@ -33,6 +33,7 @@ contains
         character(len=:), allocatable :: errmsg
         logical :: periodic(3)
         integer(i8) :: total, available
+        character(len=200) :: line
 
         ! a size given for the nodes' memory (sph_memory) must read as one, on every rank
         call node_memory_bytes(total, available, errmsg)
@@ -46,14 +47,19 @@ contains
         allocate(sim%checkpoints(0))
         call physics_from_config(cfg, sim%phys, stat, errmsg)
         if (stat /= 0) call fatal_collective('set-up', errmsg)
+        ! (the input's own dx passed sph_config's check_periodic_sides: here a checkpoint's
+        ! spacing, which a remesh written for study may have made too coarse for the box)
         do axis = 1, cfg%domain%dimension
             if (cfg%domain%is_periodic(axis) .and. &
                 cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis) < &
                 2.0_wp * sim%phys%kernel%support) then
-                call fatal_collective('set-up', &
-                    'a periodic box side must be at least twice the ' // &
-                    'kernel support radius (&domain box_lo/box_hi, &domain dx, ' // &
-                    '&numerics h_factor)')
+                write(line, '(a,i0,a,es9.3,a,es9.3,a,es9.3,a)') 'the periodic side on ' // &
+                    'axis ', axis, ' (', cfg%domain%box_hi(axis) - cfg%domain%box_lo(axis), &
+                    ' m) is less than two kernel supports (2 x ', sim%phys%kernel%support, &
+                    ' m) at the spacing dx = ', cfg%domain%dx, ' m'
+                call fatal_collective('set-up', trim(line) // ' (&domain dx, or the ' // &
+                    'spacing of the checkpoint continued or remeshed: one that a remesh ' // &
+                    'wrote for study cannot be set up)')
             end if
         end do
         sim%solids = solids_from_config(cfg)

@@ -328,7 +328,7 @@ contains
         if (lost > 0) then
             ! (what a user can act on: the geometry, not the transfer's internals; a slot
             ! one fine spacing wide along a closed box's walls, coarsened, fz31)
-            write(errmsg, '(a, i0, a, es10.3, a)') 'remesh_transfer: ', lost, &
+            write(errmsg, '(i0, a, es10.3, a)') lost, &
                 ' old particle(s) have no new particle within the support, nor within ', &
                 ISOLATED_REACH * h, ' m: they lie where the new spacing leaves no room for ' // &
                 'a particle (a slot or gap between solids narrower than about one new ' // &
@@ -411,7 +411,7 @@ contains
         m_new(1:n) = acc(A_M, 1:n)
         empty = count(m_new(1:n) <= 0.0_wp .or. acc(A_VOL, 1:n) <= 0.0_wp)
         if (empty > 0) then
-            write(errmsg, '(a, i0, a)') 'remesh_transfer: ', empty, &
+            write(errmsg, '(i0, a)') empty, &
                 ' new particle(s) receive no mass (no old particle within the support)'
             stat = 2
             return
