@@ -322,6 +322,24 @@ class TestErrorTable(PostProcessingTestCase):
         finally:
             shutil.rmtree(folder, ignore_errors=True)
 
+    def test_compare_time_within_tolerance(self):
+        # two runs' times a few ulps apart agree within a tolerance, not bitwise; far apart
+        # they differ under any small tolerance
+        folder = tempfile.mkdtemp(prefix="sph_pp_compare_time_")
+        try:
+            a, b = (os.path.join(folder, name) for name in ("a.h5", "b.h5"))
+            shutil.copy(self.paths[-1], a)
+            shutil.copy(self.paths[-1], b)
+            with h5py.File(b, "r+") as f:
+                f.attrs["time"] = np.nextafter(np.nextafter(f.attrs["time"], np.inf), np.inf)
+            self.assertEqual(run("sph_compare.py", a, b).returncode, 1)
+            self.assertEqual(run("sph_compare.py", a, b, "--tolerance", "1e-12").returncode, 0)
+            with h5py.File(b, "r+") as f:
+                f.attrs["time"] = 1.001 * f.attrs["time"] + 1.0
+            self.assertEqual(run("sph_compare.py", a, b, "--tolerance", "1e-12").returncode, 1)
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
+
     def test_channel_parameters(self):
         par = sph_error_table.channel_parameters(sph_snapshot.load(self.paths[0])["input"])
         self.assertAlmostEqual(par["width"], 1e-3)
