@@ -75,9 +75,11 @@ contains
     !> &output; the listed times must lie in [0, t_end] and increase. Entries past t_end (a
     !> shortened run) are skipped with a note (the group's), not refused. The output folder must
     !> be creatable: its nearest existing ancestor must be a directory (nothing is made here).
-    subroutine read_output_input(grp, t_end, case_name, out)
+    !> max_steps: &run's; a run writes at most one snapshot a step.
+    subroutine read_output_input(grp, t_end, max_steps, case_name, out)
         type(nml_group_t), intent(inout) :: grp
         real(wp), intent(in) :: t_end
+        integer, intent(in) :: max_steps
         character(len=*), intent(in) :: case_name   !< &run case_name (in the file names)
         type(output_input_t), intent(out) :: out
         integer :: k, n_kept
@@ -104,8 +106,11 @@ contains
         call grp%get_real('output_interval', out%output_interval, 0.0_wp, min=0.0_wp, &
             unit='s', doc='simulated time between snapshots; 0 = first, last and listed only')
         if (out%output_interval > 0.0_wp) then
-            ! (t_end <= 1e20 and an interval of at least 1e-30 s keep the count finite)
-            if (t_end / out%output_interval > max_interval_snapshots) then
+            ! (t_end <= 1e20 and an interval of at least 1e-30 s keep the count finite; a
+            ! run stopped by max_steps writes at most one a step: t_end = 1e6 s with
+            ! max_steps = 150 was refused as 5e6 snapshots, fz37)
+            if (min(t_end / out%output_interval, real(max_steps, wp)) > &
+                max_interval_snapshots) then
                 write(t_text, '(es10.3)') t_end
                 call grp%error('output_interval', 'asks for about ' // &
                     sci_text(t_end / out%output_interval) // ' snapshots up to t_end = ' // &

@@ -157,8 +157,14 @@ contains
                 if (.not. (hi(a) - lo(a) < length)) call grp%error(extent_key(a), &
                     'the body must be narrower than the periodic box along ' // axis_text)
                 if (.not. (body_mid(a) >= dom%box_lo(a) .and. body_mid(a) < dom%box_hi(a))) &
+                    then
+                    ! (the numbers: a box body's centre is the middle of its lo and hi)
                     call grp%error(extent_key(a), 'the body''s centre must lie in the box ' // &
-                        'along ' // axis_text // ' (it may cross a periodic face)')
+                        'along ' // axis_text // ' (at ' // real_text(body_mid(a)) // &
+                        ' m; the box takes [' // real_text(dom%box_lo(a)) // ', ' // &
+                        real_text(dom%box_hi(a)) // ') m, box_hi excluded: a body may ' // &
+                        'cross a periodic face, its centre on the lower side)')
+                end if
             else if (.not. (lo(a) > dom%box_lo(a) .and. hi(a) < dom%box_hi(a))) then
                 call grp%error(extent_key(a), 'the body must lie inside the box along ' // &
                     axis_text // ' and not touch its walls (it may cross periodic faces only)')

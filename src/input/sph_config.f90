@@ -159,7 +159,8 @@ contains
         type(config_t), intent(inout) :: cfg
         logical, intent(in), optional :: groups_known
         call read_run_input(grp(1), cfg%run)
-        call read_output_input(grp(2), cfg%run%t_end, cfg%run%case_name, cfg%output)
+        call read_output_input(grp(2), cfg%run%t_end, cfg%run%max_steps, cfg%run%case_name, &
+            cfg%output)
         call read_domain_input(grp(3), cfg%domain)
         call read_fluid_input(grp(4), cfg%fluid)
         call read_numerics_input(grp(5), cfg%numerics)
