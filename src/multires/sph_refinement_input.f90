@@ -90,6 +90,8 @@ contains
             doc='with conserve: also remove the virtual particles'' net push from the real ' // &
             'particles next to them (momentum); .false. holds the mass only and logs the ' // &
             'push as measured')
+        if (.not. ref%conserve) call grp%note_if_given('remove_push', 'the push is ' // &
+            'removed only with conserve = .true.')
         if (iand(ref%max_subcycles, ref%max_subcycles - 1) /= 0) call grp%error( &
             'max_subcycles', int_text(int(ref%max_subcycles, i8)) // ' is not a power of 2: ' // &
             'use 1, 2, 4, 8, ... up to ' // int_text(int(MAX_SUBCYCLES, i8)))
@@ -158,7 +160,8 @@ contains
                 end if
             end do
         case ('body')
-            if (.not. (reg%distance > 0.0_wp)) call grp%error('distance', &
+            ! (a negative distance is refused by the range check already: one message)
+            if (reg%distance == 0.0_wp) call grp%error('distance', &
                 "must be > 0 (m) for shape = 'body'")
             if (len_trim(reg%body) == 0) then
                 call grp%error('body', "shape = 'body' needs the name of a &body" // &
