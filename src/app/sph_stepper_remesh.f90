@@ -489,8 +489,9 @@ contains
             call log_warn_counted('summation_mismatch', &
             'remesh: with the total mass held, the new set''s kernel sums stay up to ' // &
             trim(adjustl(fixed_text(100.0_wp * report%mismatch_after, 8, 2))) // &
-            ' % off the densities handed on, and the run goes on with them; ' // &
-            'density_method = ''continuity'' keeps the handed-on densities')
+            ' % off the densities handed on, and this summation run goes on with them ' // &
+            '(a run with &numerics density_method = ''continuity'' would keep the ' // &
+            'handed-on densities instead)')
     end subroutine log_remesh
 
     module procedure simulation_remesh_file
