@@ -39,6 +39,7 @@ module sph_transition_driver
     use sph_solids, only: solids_t, deepest_solid, SOLID_PLANE
     use sph_remesh_relax, only: relax_displacements, relax_list_t, RELAX_PASSES, RELAX_H_FACTOR
     use sph_domain, only: domain_t, domain_owner
+    use sph_halo, only: halo_t, halo_setup, halo_build
     use sph_zones, only: zones_t, MAX_LEVEL
     use sph_initial, only: create_lattice_particles, site_filter_t
     use sph_global_ids, only: global_max_id, assign_global_ids, id_order
@@ -172,26 +173,47 @@ module sph_transition_driver
 
 contains
 
-    !> Index of `value` in ids (order: the ids ascending), 0 when it is not there.
-    pure integer function find_id(ids, order, value) result(k)
-        integer(i8), intent(in) :: ids(:), value
-        integer, intent(in) :: order(:)
-        integer :: lo, hi, mid
+    !> The slot of id `value` in `set` nearest to x, if within reach of it; 0 otherwise.
+    !> A slot near a periodic face is held under one id on one side and under another on the
+    !> other side (its sources there are periodic images, whose ids are marked by their side),
+    !> and share_slots brings each rank the copies of its neighbours' slots (periodic images
+    !> included) within reach: the copy nearest to the particle is then the same on any rank
+    !> count (before, a virtual carried across the periodic face found its slot on 1 rank, as
+    !> made on the far side, and none on 2 ranks; fz39).
+    pure integer function nearest_slot(set, value, x, reach) result(k)
+        type(slot_set_t), intent(in) :: set
+        integer(i8), intent(in) :: value
+        real(wp), intent(in) :: x(3), reach
+        integer :: lo, hi, mid, first, j
+        real(wp) :: best, d2
         k = 0
+        if (.not. allocated(set%order)) return
+        ! the first place of value in the id order
         lo = 1
-        hi = size(order)
+        hi = size(set%order)
+        first = 0
         do while (lo <= hi)
             mid = (lo + hi) / 2
-            if (ids(order(mid)) == value) then
-                k = order(mid)
-                return
-            else if (ids(order(mid)) < value) then
-                lo = mid + 1
-            else
+            if (set%id(set%order(mid)) >= value) then
+                if (set%id(set%order(mid)) == value) first = mid
                 hi = mid - 1
+            else
+                lo = mid + 1
             end if
         end do
-    end function find_id
+        if (first == 0) return
+        best = reach * reach
+        do j = first, size(set%order)
+            if (set%id(set%order(j)) /= value) exit
+            d2 = sum((set%x(:, set%order(j)) - x)**2)
+            if (d2 <= best) then
+                ! (ties: the first in id order, which sorts by id alone, stable in the
+                ! storage order: the local copies come before the received ones)
+                if (k == 0 .or. d2 < best) k = set%order(j)
+                best = d2
+            end if
+        end do
+    end function nearest_slot
 
     !> Append slots (ids, positions, copy flags) to a level's slot set, its id order anew. A
     !> middle level of three gets two: from the coarser level and from the finer one (it was
@@ -392,6 +414,10 @@ contains
         end do
         if (global_max(env, int(stat, i8)) /= 0) call fatal_collective('transition zones', &
             'making virtual particles failed: ' // trim(errmsg))
+        ! the neighbours' slots within reach, periodic images included (nearest_slot)
+        do lv = 0, zones%n_levels - 1
+            call share_slots(slots(lv), slot_reach(lv))
+        end do
         ! 2. conversions (owned particles; old virtuals are dropped after serving as sources)
         call find_slotless_copies()
         allocate(drop(p%n_owned), converted(p%n_owned))
@@ -457,7 +483,7 @@ contains
             integer :: lv_i, k
             real(wp) :: shift(3)
             lv_i = p%level(i)
-            k = find_id(slots(lv_i)%id, slots(lv_i)%order, p%id(i))
+            k = nearest_slot(slots(lv_i), p%id(i), p%x(:, i), slot_reach(lv_i))
             if (k == 0) then
                 turns_real = zones%level_at(p%x(:, i)) == lv_i .and. .not. slotless_copy(i)
                 return
@@ -489,9 +515,9 @@ contains
             do lv_c = 1, zones%n_levels - 1
                 cand = pack([(j, j = 1, p%n_owned)], p%kind(1:p%n_owned) == KIND_VIRTUAL .and. &
                     p%level(1:p%n_owned) == lv_c)
-                cand = pack(cand, [(find_id(slots(lv_c)%id, slots(lv_c)%order, &
-                    p%id(cand(j))) == 0 .and. zones%level_at(p%x(:, cand(j))) == lv_c, &
-                    j = 1, size(cand))])
+                cand = pack(cand, [(nearest_slot(slots(lv_c), p%id(cand(j)), &
+                    p%x(:, cand(j)), slot_reach(lv_c)) == 0 .and. &
+                    zones%level_at(p%x(:, cand(j))) == lv_c, j = 1, size(cand))])
                 if (size(cand) == 0) cycle
                 allocate(copy(size(cand)))
                 copy = .false.
@@ -501,6 +527,38 @@ contains
                 deallocate(copy)
             end do
         end subroutine find_slotless_copies
+
+        !> How far from a virtual particle of level lv its slot may lie: half its spacing (a
+        !> virtual is made at its slot and both move with the flow until the next update).
+        pure real(wp) function slot_reach(lv)
+            integer, intent(in) :: lv
+            slot_reach = 0.5_wp * level_phys(lv)%dx
+        end function slot_reach
+
+        !> Add to set the slots of the other ranks, and the periodic images of all, that lie
+        !> within reach of this rank's region (a halo of the slots; collective).
+        subroutine share_slots(set, reach)
+            type(slot_set_t), intent(inout) :: set
+            real(wp), intent(in) :: reach
+            type(particles_t) :: q
+            type(halo_t) :: slot_halo
+            integer :: n
+            n = 0
+            if (allocated(set%id)) n = size(set%id)
+            call particles_init(q, max(n, 1), dim)
+            q%n_owned = n
+            q%n_total = n
+            if (n > 0) then
+                q%x(:, 1:n) = set%x(:, 1:n)
+                q%id(1:n) = set%id(1:n)
+                q%kind(1:n) = merge(1, 0, set%copy(1:n))
+            end if
+            call halo_setup(slot_halo, domain, reach)
+            call halo_build(slot_halo, domain, env, q)
+            if (q%n_ghost > 0) call add_slots(set, q%id(n + 1:n + q%n_ghost), &
+                q%x(:, n + 1:n + q%n_ghost), q%kind(n + 1:n + q%n_ghost) == 1)
+            call particles_free(q)
+        end subroutine share_slots
 
         !> Virtual particles of level `target` made from the particles of level `source` (an
         !> adjacent level), kept where target's zone is and this rank owns the position.
