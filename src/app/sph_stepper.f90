@@ -981,8 +981,18 @@ contains
         call timers_leave(sim%timers, previous)
     end subroutine update_transition_zones
 
+    !> The largest sound speed of the levels: the fastest a fluid particle may move.
+    pure real(wp) function fastest_sound(sim) result(c)
+        type(simulation_t), intent(in) :: sim
+        c = sim%phys%c
+        if (allocated(sim%level_phys)) then
+            if (size(sim%level_phys) > 0) c = max(c, maxval(sim%level_phys(:)%c))
+        end if
+    end function fastest_sound
+
     !> Stop collectively when the run has become unhealthy (sph_health): non-finite values, a
-    !> fluid particle inside a solid, a density outside the band, a collapsed time step. The
+    !> fluid particle inside a solid, a density outside the band, a particle faster than
+    !> sound, a collapsed time step. The
     !> lowest rank with a problem names it; a failure snapshot is written; exit status 3.
     !> moved: the step's largest displacement, checked against the box (check_displacement).
     subroutine check_health(sim, env, moved)
@@ -997,7 +1007,8 @@ contains
         ! a step shortened to land on an output time is not a collapse: the check watches the
         ! step the limits asked for
         if (sim%first_dt <= 0.0_wp) sim%first_dt = sim%uncapped_dt
-        call check_particles(sim%cfg%health, sim%phys%rho0, sim%solids, sim%p, problem)
+        call check_particles(sim%cfg%health, sim%phys%rho0, sim%solids, sim%p, problem, &
+            fastest_sound(sim))
         call check_timestep(sim%cfg%health, sim%first_dt, sim%uncapped_dt, problem, sim%time)
         ! a runaway step names itself rather than the first particle it threw into a wall
         if (present(moved) .and. problem%code /= HEALTH_NONFINITE) then

@@ -1,11 +1,11 @@
 !> Cheap checks of a run's health, made after every step: non-finite values, a fluid particle
 !> inside a solid (outside the fluid region), a fluid density outside a band around rho0, a
-!> collapsing time step. "Inside" means deeper than IN_SOLID_SLACK h behind the surface:
-!> Morris' first wall row lies half a spacing (0.38 h with the cubic spline) behind it, and a
-!> fluid particle between the surface and that row has not gone through the wall; with no
-!> slack, remeshed cylinder flows stopped on particles 1e-4 dx behind the surface. No MPI
-!> here: the stepper agrees on the verdict across ranks, writes a failure snapshot and stops
-!> every rank.
+!> fluid particle faster than sound, a collapsing time step. "Inside" means deeper than
+!> IN_SOLID_SLACK h behind the surface: Morris' first wall row lies half a spacing (0.38 h
+!> with the cubic spline) behind it, and a fluid particle between the surface and that row
+!> has not gone through the wall; with no slack, remeshed cylinder flows stopped on
+!> particles 1e-4 dx behind the surface. No MPI here: the stepper agrees on the verdict
+!> across ranks, writes a failure snapshot and stops every rank.
 module sph_health
     use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
     use sph_kinds, only: wp, i8
@@ -17,7 +17,7 @@ module sph_health
     private
     public :: health_problem_t, check_particles, check_timestep
     public :: HEALTH_OK, HEALTH_NONFINITE, HEALTH_IN_SOLID, HEALTH_DENSITY, HEALTH_TIMESTEP
-    public :: HEALTH_RUNAWAY, check_displacement, IN_SOLID_SLACK
+    public :: HEALTH_RUNAWAY, HEALTH_SPEED, check_displacement, IN_SOLID_SLACK
 
     integer, parameter :: HEALTH_OK = 0
     integer, parameter :: HEALTH_NONFINITE = 1   !< a position, velocity or density is NaN/Inf
@@ -25,6 +25,14 @@ module sph_health
     integer, parameter :: HEALTH_DENSITY = 3     !< a fluid density outside the band
     integer, parameter :: HEALTH_TIMESTEP = 4    !< the time step collapsed
     integer, parameter :: HEALTH_RUNAWAY = 5     !< a particle moved farther than the box in a step
+    !> a fluid particle faster than the sound speed: the weakly compressible model assumes
+    !> speeds of a tenth of it, and an unstable step (fixed_dt 1.27e-3 s on the L/20
+    !> Poiseuille channel) ran to its end with speeds 1500 times the flow's, its densities
+    !> within 1.3 % of rho0 (the force limit throttled the step), an error of 3.9e4 % and
+    !> exit status 0 (fz41)
+    integer, parameter :: HEALTH_SPEED = 6
+    !> no speed check with a sound speed this large (its square would overflow)
+    real(wp), parameter :: LARGEST_SPEED = 1.0e150_wp
     !> how deep (in the particle's smoothing length) behind a solid's surface counts as inside
     real(wp), parameter :: IN_SOLID_SLACK = 0.2_wp
     !> the screen of check_particles tests depths against the slack less this fraction of it
@@ -42,19 +50,30 @@ module sph_health
 
 contains
 
-    !> Check every owned particle; the first problem found is returned.
-    subroutine check_particles(limits, rho0, solids, p, problem)
+    !> Check every owned particle; the first problem found is returned. sound_speed (when
+    !> given): the fastest a fluid particle may move.
+    subroutine check_particles(limits, rho0, solids, p, problem, sound_speed)
         type(health_input_t), intent(in) :: limits
         real(wp), intent(in) :: rho0
+        real(wp), intent(in), optional :: sound_speed
         type(solids_t), intent(in) :: solids
         type(particles_t), intent(in) :: p
         type(health_problem_t), intent(out) :: problem
         real(wp), parameter :: EIGHTH = 0.125_wp
         integer :: i, k, n_solids
         character(len=96) :: text
+        real(wp) :: c
+        logical :: check_speed
         logical, allocatable :: plane(:)
         real(wp), allocatable :: normal(:, :), point(:, :)
         problem%what = ''
+        ! (no speed check without a sound speed, nor with one whose square would overflow)
+        c = huge(1.0_wp)
+        check_speed = .false.
+        if (present(sound_speed)) then
+            check_speed = sound_speed < LARGEST_SPEED
+            if (check_speed) c = sound_speed
+        end if
         ! planes tested inline (a dot product per particle and plane: every step, every
         ! particle), bodies through solid_distance; the deepest solid named only on a hit
         n_solids = 0
@@ -92,6 +111,15 @@ contains
                 call found(HEALTH_DENSITY, trim(text) // ' (&health density_band)')
                 return
             end if
+            if (.not. check_speed) cycle
+            if (faster_than(p%v(:, i), c)) then
+                call found(HEALTH_SPEED, 'a fluid particle at ' // &
+                    sci_text(norm2(EIGHTH * p%v(:, i)) / EIGHTH, 3) // ' m/s, faster than ' // &
+                    'the sound speed ' // sci_text(c, 3) // ' m/s: the step is unstable ' // &
+                    '(&numerics fixed_dt, viscous_safety, cfl) or the flow outruns what ' // &
+                    '&fluid sound_speed (or velocity_scale) was chosen for')
+                return
+            end if
         end do
     contains
         !> No particle among 1..n can fail a check of the search (screen_clear's, block by
@@ -104,7 +132,7 @@ contains
                 j1 = min(n, j0 + SCREEN_BLOCK - 1)
                 if (.not. screen_clear(j1 - j0 + 1, p%x(:, j0:j1), p%v(:, j0:j1), &
                     p%rho(j0:j1), p%kind(j0:j1), p%h(j0:j1), rho0, limits%density_band, &
-                    n_solids, normal, point)) then
+                    c, n_solids, normal, point)) then
                     all_clear = .false.
                     return
                 end if
@@ -139,7 +167,8 @@ contains
     end subroutine check_particles
 
     !> No particle of a block of n can fail a check of check_particles' search: every value
-    !> finite and, for fluid particles, the density in its band and no plane crossed deeper
+    !> finite and, for fluid particles, the density in its band, the speed below c and no
+    !> plane crossed deeper
     !> than a hair less than the slack (a superset of the search's hits, whatever the
     !> rounding of the dot products). Explicit shapes and no branches (nor .and., which
     !> gfortran evaluates by branching), so that the loops vectorise over the whole vector
@@ -147,13 +176,14 @@ contains
     !> wide and gathered x and v, 3 % of a channel step. The comparisons only once every
     !> value is known to be finite (a NaN in an ordered comparison raises the invalid flag,
     !> which Debug builds trap).
-    logical function screen_clear(n, x, v, rho, kind, h, rho0, density_band, n_solids, &
+    logical function screen_clear(n, x, v, rho, kind, h, rho0, density_band, c, n_solids, &
             normal, point)
         integer, intent(in) :: n, kind(n), n_solids
-        real(wp), intent(in) :: x(3, n), v(3, n), rho(n), h(n), rho0, density_band
+        !> c: the fastest a fluid particle may move
+        real(wp), intent(in) :: x(3, n), v(3, n), rho(n), h(n), rho0, density_band, c
         real(wp), intent(in) :: normal(3, n_solids), point(3, n_solids)
         real(wp), parameter :: EIGHTH = 0.125_wp
-        real(wp) :: band, s, thr
+        real(wp) :: band, s, thr, cs
         integer :: j, kk, n_bad
         n_bad = 0
         do j = 1, n
@@ -169,6 +199,12 @@ contains
             n_bad = n_bad + merge(1, 0, kind(j) == KIND_FLUID) * &
                 merge(1, 0, abs(rho(j) - rho0) > band)
         end do
+        ! (a component above c / sqrt(3) for each speed above c: no square that overflows)
+        cs = c / sqrt(3.0_wp)
+        do j = 1, n
+            n_bad = n_bad + merge(1, 0, kind(j) == KIND_FLUID) * &
+                merge(1, 0, max(abs(v(1, j)), abs(v(2, j)), abs(v(3, j))) > cs)
+        end do
         do kk = 1, n_solids
             do j = 1, n
                 n_bad = n_bad + merge(1, 0, kind(j) == KIND_FLUID) * merge(1, 0, &
@@ -179,6 +215,16 @@ contains
         end do
         screen_clear = n_bad == 0
     end function screen_clear
+
+    !> |v| > c, without squares that overflow (any finite v, c below LARGEST_SPEED).
+    pure logical function faster_than(v, c)
+        real(wp), intent(in) :: v(3), c
+        if (maxval(abs(v)) > c) then
+            faster_than = .true.
+        else
+            faster_than = sum(v**2) > c * c
+        end if
+    end function faster_than
 
     !> The time step against the first one of the run, and (time given) against the
     !> resolution of the time: a step that no longer advances it (fixed_dt = 1e-30 s at

@@ -6,9 +6,12 @@ module sph_physics_input
     use sph_namelist, only: nml_group_t, real_text
     use sph_domain_input, only: domain_input_t
     implicit none
+    !> the largest viscous_safety found stable on the channel flows (Poiseuille at L/20, linear
+    !> wall extrapolation, doc/physics.md): above it the input gets a note
+    real(wp), parameter :: PC_VISCOUS_STABLE = 0.25_wp, VERLET_VISCOUS_STABLE = 0.125_wp
     private
     public :: fluid_input_t, numerics_input_t, read_fluid_input, read_numerics_input
-    public :: check_moving_corners
+    public :: check_moving_corners, check_transport_background
 
     integer, parameter :: name_len = 32
 
@@ -171,6 +174,22 @@ contains
             call grp%error('integrator', "'verlet' works with transport_velocity = .false. " // &
                 "only (the transport offsets follow the predictor-corrector's stages); use " // &
                 "integrator = 'predictor_corrector'")
+        ! a fixed step leaves the limits' factors idle
+        if (num%fixed_dt > 0.0_wp) then
+            call grp%note_if_given('cfl', 'fixed_dt sets the step')
+            call grp%note_if_given('viscous_safety', 'fixed_dt sets the step')
+            call grp%note_if_given('force_safety', 'fixed_dt sets the step')
+        else if (num%viscous_safety > merge(VERLET_VISCOUS_STABLE, PC_VISCOUS_STABLE, &
+                trim(num%integrator) == 'verlet') * (1.0_wp + 1.0e-12_wp)) then
+            ! (an unstable viscous step grows a zig-zag of the first rows that the force
+            ! limit throttles: the densities stay in their band and the run ends with exit
+            ! status 0: 1081 % off at 1 s with 0.3 on the L/20 Poiseuille channel; fz41)
+            call grp%note('viscous_safety', 'above ' // trim(real_text(merge( &
+                VERLET_VISCOUS_STABLE, PC_VISCOUS_STABLE, trim(num%integrator) == 'verlet'))) // &
+                ', the largest factor found stable with this integrator on the channel flows ' // &
+                '(doc/physics.md): the viscous term may go unstable, which the &health ' // &
+                'checks do not always see')
+        end if
         if (num%repulsive_n1 <= num%repulsive_n2) &
             call grp%error('repulsive_n1, repulsive_n2', 'need n1 > n2 >= 1')
         ! (kept to reproduce the thesis' form; its weakness grows into an instability)
@@ -268,6 +287,24 @@ contains
         if (trim(num%viscosity_model) /= 'morris') call grp%error('viscosity_model', "'" // &
             trim(num%viscosity_model) // "': " // tvf // "viscosity_model = 'morris'")
     end subroutine check_transport_velocity
+
+    !> The transport velocity keeps the background pressure out of the momentum: it takes
+    !> its own (&numerics transport_pressure), and a background in the equation of state
+    !> (&fluid background_pressure) would push on the momentum as well, which the transport
+    !> velocity does not balance (Poiseuille at L/20 with 10 Pa: 2.5e4 % off at 0.225 s,
+    !> densities +-6 %, exit status 0; fz41).
+    subroutine check_transport_background(fluid_grp, num, fl)
+        type(nml_group_t), intent(inout) :: fluid_grp
+        type(numerics_input_t), intent(in) :: num
+        type(fluid_input_t), intent(in) :: fl
+        if (.not. num%transport_velocity) return
+        if (fl%background_pressure /= 0.0_wp) call fluid_grp%error('background_pressure', &
+            real_text(fl%background_pressure) // ' Pa with &numerics transport_velocity = ' // &
+            ".true.: the transport velocity takes its background pressure from &numerics " // &
+            'transport_pressure and keeps it out of the momentum; a background in the ' // &
+            'equation of state acts on the momentum, unbalanced: use background_pressure ' // &
+            '= 0 (and transport_pressure for the background)')
+    end subroutine check_transport_background
 
     !> Where walls of different velocities meet at a corner (a lid-driven cavity), the lid's
     !> velocity jump drags fluid into the downstream corner at every step. Only a density
