@@ -528,11 +528,14 @@ contains
             end do
         end subroutine find_slotless_copies
 
-        !> How far from a virtual particle of level lv its slot may lie: half its spacing (a
-        !> virtual is made at its slot and both move with the flow until the next update).
+        !> How far from a virtual particle of level lv its slot may lie: one spacing. A
+        !> virtual is made at its slot and both move with the flow until the next update,
+        !> which comes with the next rebuild of the neighbour list, before any particle has
+        !> moved half its skin (0.1 h): they part by a fraction of that. Copies of one slot
+        !> lie a period apart, so the nearest is never in doubt.
         pure real(wp) function slot_reach(lv)
             integer, intent(in) :: lv
-            slot_reach = 0.5_wp * level_phys(lv)%dx
+            slot_reach = level_phys(lv)%dx
         end function slot_reach
 
         !> Add to set the slots of the other ranks, and the periodic images of all, that lie
