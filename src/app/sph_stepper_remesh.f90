@@ -17,7 +17,8 @@ submodule (sph_stepper) sph_stepper_remesh
         accurate_sum, REMESH_NONE, REMESH_REFINE, REMESH_COARSEN, REMESH_SAME, NARROW_GAP
     use sph_rates, only: compute_summation_density
     use sph_particles, only: HALO_GHOST
-    use sph_errors, only: STATUS_OUTPUT_FAILED
+    use sph_errors, only: STATUS_OUTPUT_FAILED, remove_at_exit
+    use sph_filesystem, only: entry_kind, ENTRY_NONE
     use sph_memory, only: peak_resident_bytes, startup_memory_bytes
     use sph_domain_input, only: misfit_axis
     implicit none
@@ -640,16 +641,19 @@ contains
     end procedure simulation_refine_regions_file
 
     !> OUT of an offline remesh is a new file in a folder that takes it (collective): an
-    !> existing file (IN itself, or a checkpoint the user still needs) is never replaced, and
-    !> a folder that cannot take OUT.tmp (where the checkpoint goes first) is found out before
-    !> the work. Stops every rank with a message otherwise.
+    !> existing file (IN itself, or a checkpoint the user still needs; a link, even one that
+    !> points nowhere) is never replaced, and a folder that cannot take OUT.tmp (where the
+    !> checkpoint goes first) is found out before the work. OUT.tmp is then made and kept
+    !> (removed when the process leaves on an error): a second remesh to the same OUT finds
+    !> it and stops (two at once both passed, and the second replaced the first's OUT; fz40).
+    !> Stops every rank with a message otherwise.
     subroutine check_out_path(env, in_path, out_path)
         type(mpi_env_t), intent(in) :: env
         character(len=*), intent(in) :: in_path, out_path
         logical :: out_exists, out_writable
         integer :: unit, ios
         out_exists = .false.
-        if (env%rank == 0) inquire(file=out_path, exist=out_exists)
+        if (env%rank == 0) out_exists = entry_kind(out_path) /= ENTRY_NONE
         if (global_max(env, merge(1_i8, 0_i8, out_exists)) > 0) then
             if (out_path == in_path) then
                 call fatal_collective('remesh', "OUT '" // out_path // "' is IN: the " // &
@@ -661,7 +665,7 @@ contains
         end if
         ! OUT.tmp too is never replaced: the probe below, and the write, replaced a file of
         ! that name (through a link: its target truncated to 0 bytes) without a word
-        if (env%rank == 0) inquire(file=out_path // '.tmp', exist=out_exists)
+        if (env%rank == 0) out_exists = entry_kind(out_path // '.tmp') /= ENTRY_NONE
         if (global_max(env, merge(1_i8, 0_i8, out_exists)) > 0) &
             call fatal_collective('remesh', "'" // out_path // ".tmp' exists (left by an " // &
                 'interrupted remesh to OUT, or a file of yours): the checkpoint is written ' // &
@@ -672,7 +676,10 @@ contains
             open(newunit=unit, file=out_path // '.tmp', status='new', action='write', &
                 iostat=ios)
             out_writable = ios == 0
-            if (out_writable) close(unit, status='delete')
+            if (out_writable) then
+                close(unit)
+                call remove_at_exit(out_path // '.tmp')
+            end if
         end if
         if (global_max(env, merge(1_i8, 0_i8, .not. out_writable)) > 0) &
             call fatal_collective('remesh', "cannot create OUT '" // out_path // "' (its " // &

@@ -28,10 +28,6 @@ program sphremesh_main
     call mpi_env_init_world(env)
     call note_startup_memory()
     call logger_init(env%rank)
-    ! a scheduler's SIGTERM/SIGUSR1 asks for a checkpoint and a clean stop (sph_schedule)
-    call signals_install(stat)
-    if (stat /= 0) call log_info('warning: cannot install the SIGTERM/SIGUSR1 handlers')
-
     call parse_command_line(opts, stat, errmsg)
     if (stat /= 0) call fatal_collective('command line', errmsg)
     if (opts%show_help .or. opts%show_version) then
@@ -70,6 +66,12 @@ program sphremesh_main
         call log_info('check: the input is valid')
         call finish(0)
     end if
+    ! a scheduler's SIGTERM/SIGUSR1 asks a run for a checkpoint and a clean stop
+    ! (sph_schedule); --remesh and --check, which write no checkpoint to stop at, keep the
+    ! signals' default: they end there (they ran on to the end and exited 0, a remesh writing
+    ! OUT after the signal; fz40)
+    call signals_install(stat)
+    if (stat /= 0) call log_info('warning: cannot install the SIGTERM/SIGUSR1 handlers')
     if (opts%continue_run) call continue_from(cfg%output%output_dir, cfg%run%case_name)
     call simulation_run(env, cfg, opts%restart_from, status)
 

@@ -177,3 +177,24 @@ int sph_lock_file(const char *path, char *holder, int capacity)
     }
     return 0;
 }
+
+/* What the directory entry path is, without following a link: 0 none, 1 a regular file,
+ * 2 a symbolic link (dangling, or to anything but a character device), 3 a directory,
+ * 4 anything else, 5 a link to a character device (/dev/full standing in for a full disk in
+ * the tests: writing there loses nothing). */
+int sph_entry_kind(const char *path)
+{
+    struct stat status, target;
+    if (lstat(path, &status) != 0)
+        return 0;
+    if (S_ISLNK(status.st_mode)) {
+        if (stat(path, &target) == 0 && S_ISCHR(target.st_mode))
+            return 5;
+        return 2;
+    }
+    if (S_ISREG(status.st_mode))
+        return 1;
+    if (S_ISDIR(status.st_mode))
+        return 3;
+    return 4;
+}

@@ -9,7 +9,9 @@ module sph_filesystem
     implicit none
     private
     public :: make_directories, rename_file, link_file, delete_file, list_directory
-    public :: remove_empty_directory
+    public :: remove_empty_directory, entry_kind, unlink_if_link
+    public :: ENTRY_NONE, ENTRY_FILE, ENTRY_LINK, ENTRY_DIRECTORY, ENTRY_OTHER
+    public :: ENTRY_LINK_TO_DEVICE
     public :: write_text_file, write_text_file_whole, free_bytes, ends_with_new_line
     public :: disk_hint
     public :: lock_for_process, LOCK_HELD, LOCK_BUSY, LOCK_UNSUPPORTED, LOCK_FAILED
@@ -17,6 +19,9 @@ module sph_filesystem
     !> lock_for_process's answers: held; held by another process; the file system has no
     !> locks; the lock file cannot be made
     integer, parameter :: LOCK_HELD = 0, LOCK_BUSY = 1, LOCK_UNSUPPORTED = 2, LOCK_FAILED = 3
+    !> entry_kind's answers (a link is not followed)
+    integer, parameter :: ENTRY_NONE = 0, ENTRY_FILE = 1, ENTRY_LINK = 2, ENTRY_DIRECTORY = 3
+    integer, parameter :: ENTRY_OTHER = 4, ENTRY_LINK_TO_DEVICE = 5
     public :: text_buffer_t
     public :: MAX_FILE_PATH
 
@@ -52,6 +57,14 @@ module sph_filesystem
             import :: c_char, c_int
             character(kind=c_char), intent(in) :: old(*), new(*)
         end function c_link
+        integer(c_int) function c_unlink_path(path) bind(C, name="unlink")
+            import :: c_char, c_int
+            character(kind=c_char), intent(in) :: path(*)
+        end function c_unlink_path
+        integer(c_int) function c_entry_kind(path) bind(C, name="sph_entry_kind")
+            import :: c_char, c_int
+            character(kind=c_char), intent(in) :: path(*)
+        end function c_entry_kind
         integer(c_int) function c_list_directory(path, buffer, capacity) &
                 bind(C, name="sph_list_directory")
             import :: c_char, c_int
@@ -125,6 +138,25 @@ contains
         if (c_link(from // c_null_char, to // c_null_char) /= 0) stat = 1
     end subroutine link_file
 
+    !> What the entry `path` is (ENTRY_*), without following a link: a dangling link exists
+    !> as one, where Fortran's INQUIRE says no file.
+    integer function entry_kind(path)
+        character(len=*), intent(in) :: path
+        entry_kind = int(c_entry_kind(path // c_null_char))
+    end function entry_kind
+
+    !> Remove `path` when it is a symbolic link (the link, not what it points at): a file
+    !> written under a name of the run's own (its .tmp names) is then made where the name
+    !> says, in the output folder, never through a link to a file elsewhere (a link at
+    !> CASE_000010.h5.tmp had the run write its snapshot over the link's target, a user's
+    !> file, and rename the link to the snapshot's name; fz40). A link to a character device
+    !> stays (the tests' /dev/full standing in for a full disk: a device keeps no file).
+    subroutine unlink_if_link(path)
+        character(len=*), intent(in) :: path
+        integer(c_int) :: rc
+        if (entry_kind(path) == ENTRY_LINK) rc = c_unlink_path(path // c_null_char)
+    end subroutine unlink_if_link
+
     !> Remove a folder if it is empty (else, or when it cannot be removed, it stays).
     subroutine remove_empty_directory(path)
         character(len=*), intent(in) :: path
@@ -182,6 +214,7 @@ contains
         character(len=*), intent(in) :: path, text
         integer, intent(out) :: stat
         character(len=:), allocatable, intent(out) :: errmsg
+        call unlink_if_link(path // '.tmp')
         call write_text_file(path // '.tmp', text, stat, errmsg)
         if (stat == 0) then
             call rename_file(path // '.tmp', path, stat)

@@ -22,7 +22,7 @@ module sph_snapshot
     use sph_hdf5, only: h5_file_t, h5_create, h5_open_read, h5_close, h5_group_create, &
         h5_row_layout, h5_write_rows, h5_read_rows, h5_dataset_rows, h5_write_attribute, &
         h5_read_attribute
-    use sph_filesystem, only: make_directories, rename_file, free_bytes, disk_hint
+    use sph_filesystem, only: make_directories, rename_file, free_bytes, disk_hint, unlink_if_link
     use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
     implicit none
     private
@@ -159,6 +159,8 @@ contains
         end if
         if (stat /= 0) return
 
+        ! (a link at the .tmp name would have the file written over its target: sph_filesystem)
+        if (env%rank == 0) call unlink_if_link(path // '.tmp')
         call h5_create(env, path // '.tmp', file, my_stat, errmsg)
         stat = agreed_status(env, my_stat)
         if (stat /= 0) then

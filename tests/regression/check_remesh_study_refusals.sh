@@ -73,4 +73,7 @@ run --remesh coarsen box4.h5 box5.h5 > box5.log 2>&1 && fail "a spacing longer t
 refused box5.log "the new spacing (1.280E-03 m) is longer than the box on axis 1: no particle fits" \
     box5.h5
 grep -q "remesh: remesh:" box5.log && fail "the stage named twice:" box5.log
+# (OUT.tmp, made at the start to keep OUT for this remesh, goes when it stops)
+[ -e box5.h5.tmp ] && fail "the refused remesh left box5.h5.tmp"
+[ -e back.h5.tmp ] && fail "the refused remesh left back.h5.tmp"
 echo "refused with a message that says why"
