@@ -92,6 +92,16 @@ contains
                     errmsg = '--remesh: IN and OUT must be file names, not empty arguments'
                     return
                 end if
+                if (is_option(opts%remesh_in) .or. is_option(opts%remesh_out)) then
+                    stat = 1
+                    if (is_option(opts%remesh_in)) then
+                        errmsg = "--remesh needs IN, got the option '" // opts%remesh_in // "'"
+                    else
+                        errmsg = "--remesh needs OUT, got the option '" // opts%remesh_out // &
+                            "'"
+                    end if
+                    return
+                end if
                 if (all(opts%remesh_mode /= [character(len=7) :: 'refine', 'coarsen', 'same'])) &
                     then
                     stat = 1
@@ -145,7 +155,8 @@ contains
         end if
         if (len(opts%remesh_mode) > 0 .and. len(opts%input_file) > 0) then
             stat = 1
-            errmsg = '--remesh takes no input file (it uses the input stored in ' // &
+            errmsg = "'" // opts%input_file // "' is an argument too many: --remesh takes " // &
+                'MODE IN OUT and no input file (it uses the input stored in ' // &
                 opts%remesh_in // ')'
             return
         end if
@@ -181,8 +192,20 @@ contains
             errmsg = name // ' needs ' // what // ', not an empty argument'
             return
         end if
+        ! (the next option taken for the value: "cannot open '--continue' as an HDF5 file")
+        if (is_option(value)) then
+            errmsg = name // ' needs ' // what // ", got the option '" // value // "'"
+            return
+        end if
         stat = 0
     end subroutine option_value
+
+    !> Whether arg is one of the command line's options (a file name does not start so).
+    pure logical function is_option(arg)
+        character(len=*), intent(in) :: arg
+        is_option = any(arg == [character(len=10) :: '--help', '-h', '--version', '--check', &
+            '--continue', '--restart', '--regions', '--remesh'])
+    end function is_option
 
     function argument(i) result(arg)
         integer, intent(in) :: i

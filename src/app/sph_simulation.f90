@@ -13,7 +13,7 @@ module sph_simulation
     use sph_schedule, only: schedule_t, schedule_init, schedule_dt_cap, schedule_after_step, &
         schedule_final_report, log_progress_header
     use sph_earlier_output, only: set_aside_earlier_output
-    use sph_logger, only: log_warn, int_text
+    use sph_logger, only: log_warn, int_text, sci_text
     use sph_step_timers, only: timers_start, timers_stop, timers_enter, timers_leave, &
         TIMER_OTHER, TIMER_OUTPUT
     implicit none
@@ -42,8 +42,9 @@ contains
             call simulation_restart(sim, env, cfg, restart_from)
             call lock_case_output(env, cfg)
             if (sim%time >= cfg%run%t_end * (1.0_wp - 1.0e-12_wp)) &
-                call fatal_collective('restart', &
-                'the checkpoint is already at the end time; raise &run t_end to continue the run')
+                call fatal_collective('restart', "the checkpoint ('" // restart_from // &
+                "') is at t = " // sci_text(sim%time, 6) // ' s, at or past &run t_end = ' // &
+                sci_text(cfg%run%t_end, 6) // ' s: the run is done; raise t_end to continue it')
             ! (max_steps counts from the run's start: a restart at or past it took a step all
             ! the same, its remaining time negative)
             if (sim%step >= cfg%run%max_steps) call fatal_collective('restart', &

@@ -137,7 +137,8 @@ contains
                 errmsg)
             if (stat /= 0) call fatal_collective(what, errmsg)
             ! (a warning: a newer checkpoint, truncated by a crash or damaged, is not used)
-            if (len(skipped) > 0) call log_warn(what // ': skipped' // skipped)
+            if (len(skipped) > 0) call log_warn(what // ': newer checkpoints skipped:' // &
+                skipped)
         else
             path = from
         end if
