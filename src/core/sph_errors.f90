@@ -73,11 +73,14 @@ contains
         end if
         code = 1
         if (present(status)) code = status
+        ! the remove_at_exit file goes before the barrier: once a rank has left with a
+        ! non-zero status mpirun may kill the others, and rank 0's OUT.tmp of a refused
+        ! --remesh stayed behind (a fresh clone's CI, 2 ranks)
+        call remove_exit_files()
         if (initialized .and. .not. finalized) then
             if (have_comm) call MPI_Barrier(error_comm, ierr)
             if (present(abort)) then
                 if (abort .and. have_comm) then
-                    call remove_exit_files()
                     call MPI_Abort(error_comm, code, ierr)
                 end if
             end if
