@@ -243,7 +243,9 @@ contains
             nl // &
             '                     when that holds no checkpoint file of the case (only' // &
             nl // &
-            '                     damaged ones: an error); for job chains' // nl // &
+            '                     damaged ones: an error); a run already at its end' // &
+            nl // &
+            '                     exits 0 and writes nothing; for job chains' // nl // &
             '  --check            check the input and set the run up: print the particle' // &
             nl // &
             '                     counts, memory, time step and steps, then stop (no output)' // &

@@ -13,7 +13,7 @@ module sph_simulation
     use sph_schedule, only: schedule_t, schedule_init, schedule_dt_cap, schedule_after_step, &
         schedule_final_report, log_progress_header
     use sph_earlier_output, only: set_aside_earlier_output
-    use sph_logger, only: log_warn, int_text, sci_text
+    use sph_logger, only: log_warn, log_info, int_text, sci_text
     use sph_step_timers, only: timers_start, timers_stop, timers_enter, timers_leave, &
         TIMER_OTHER, TIMER_OUTPUT
     implicit none
@@ -24,14 +24,24 @@ contains
 
     !> The whole run, to t_end or max_steps (collective). status: 0, or 75 when a signal or
     !> the wall-time limit stopped it early after a checkpoint (a job script resubmits).
-    subroutine simulation_run(env, cfg, restart_from, status)
+    !> continuing (sphremesh --continue): a checkpoint at or past the run's end means the run
+    !> is done (status 0, nothing written), not an error: a chain's link started after the
+    !> run ended (a job submitted again, a link whose checkpoint fell on t_end) reports done.
+    subroutine simulation_run(env, cfg, restart_from, status, continuing)
         type(mpi_env_t), intent(in) :: env
         type(config_t), intent(in) :: cfg
         character(len=*), intent(in) :: restart_from
         integer, intent(out) :: status
+        logical, intent(in), optional :: continuing
         type(simulation_t) :: sim
         type(schedule_t) :: sched
         integer :: previous
+        logical :: done_is_success
+        character(len=:), allocatable :: why_done
+
+        done_is_success = .false.
+        if (present(continuing)) done_is_success = continuing
+        status = 0
 
         if (len(restart_from) > 0) then
             ! (before the checkpoint is read: a run of the case that is writing could remove
@@ -41,16 +51,27 @@ contains
             if (restart_source_exists(env, restart_from)) call lock_case_output(env, cfg)
             call simulation_restart(sim, env, cfg, restart_from)
             call lock_case_output(env, cfg)
-            if (sim%time >= cfg%run%t_end * (1.0_wp - 1.0e-12_wp)) &
-                call fatal_collective('restart', "the checkpoint ('" // restart_from // &
-                "') is at t = " // sci_text(sim%time, 6) // ' s, at or past &run t_end = ' // &
-                sci_text(cfg%run%t_end, 6) // ' s: the run is done; raise t_end to continue it')
+            why_done = ''
+            if (sim%time >= cfg%run%t_end * (1.0_wp - 1.0e-12_wp)) then
+                why_done = "the checkpoint ('" // restart_from // "') is at t = " // &
+                    sci_text(sim%time, 6) // ' s, at or past &run t_end = ' // &
+                    sci_text(cfg%run%t_end, 6) // ' s: the run is done'
+                if (.not. done_is_success) why_done = why_done // '; raise t_end to continue it'
             ! (max_steps counts from the run's start: a restart at or past it took a step all
             ! the same, its remaining time negative)
-            if (sim%step >= cfg%run%max_steps) call fatal_collective('restart', &
-                'the checkpoint is at step ' // int_text(sim%step) // ', at or past &run ' // &
-                'max_steps = ' // int_text(int(cfg%run%max_steps, i8)) // ' (steps count ' // &
-                'from the start of the run); raise max_steps to continue the run')
+            else if (sim%step >= cfg%run%max_steps) then
+                why_done = 'the checkpoint is at step ' // int_text(sim%step) // &
+                    ', at or past &run max_steps = ' // int_text(int(cfg%run%max_steps, i8)) // &
+                    ' (steps count from the start of the run): the run is done'
+                if (.not. done_is_success) why_done = why_done // &
+                    '; raise max_steps to continue it'
+            end if
+            if (len(why_done) > 0) then
+                if (.not. done_is_success) call fatal_collective('restart', why_done)
+                call log_info('continue: nothing to do: ' // why_done // &
+                    ' (raise &run t_end or max_steps to go on)')
+                return
+            end if
             call keep_earlier_output(env, cfg, sim%step)
         else
             call simulation_setup(sim, env, cfg)

@@ -73,7 +73,7 @@ program sphremesh_main
     call signals_install(stat)
     if (stat /= 0) call log_info('warning: cannot install the SIGTERM/SIGUSR1 handlers')
     if (opts%continue_run) call continue_from(cfg%output%output_dir, cfg%run%case_name)
-    call simulation_run(env, cfg, opts%restart_from, status)
+    call simulation_run(env, cfg, opts%restart_from, status, opts%continue_run)
 
     call log_warning_summary()
     call finish(status)

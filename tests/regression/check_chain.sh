@@ -2,10 +2,10 @@
 # The chaining job script under a stand-in scheduler: a loop that starts
 # scripts/jobs/sphremesh-chain, sends its ranks SIGTERM a moment after each start, and starts
 # it again while it asks for another job (status 75). The chained run must end where one
-# uninterrupted run ends, bitwise (same rank count). Then, in the same folder: a second case
-# starts afresh, a failing link after a stopped one fails, a stop whose launcher fails is
-# still a stop however many lines follow it, and a failing link is a failure whatever another
-# chain writes to a shared log meanwhile.
+# uninterrupted run ends, bitwise (same rank count); a link after the end reports done. Then,
+# in the same folder: a second case starts afresh, a failing link after a stopped one fails,
+# a stop whose launcher fails is still a stop however many lines follow it, and a failing
+# link is a failure whatever another chain writes to a shared log meanwhile.
 # usage: check_chain.sh CHAIN LAUNCHER PROGRAM INPUT WORKDIR PYTHON COMPARER
 set -u
 chain=$1 launcher=$2 program=$3 input=$4 work=$5 python=$6 comparer=$7
@@ -50,6 +50,16 @@ final=$(cd "$work/straight/output" && ls *_0*.h5 | grep -v checkpoint | sort | t
 "$python" "$comparer" "$work/straight/output/$final" "output/$final" || {
     echo "the chained run differs from the uninterrupted one"; exit 1; }
 echo "$stops interruptions, $((stops + 1)) jobs; $final identical to the uninterrupted run"
+# A link started after the run's end (the job submitted again): done, status 0, no file of
+# the run's touched (it failed with status 1, and a chain's last link read as a failure)
+run_files() { find output -mindepth 1 ! -name 'chain-*' -printf '%p %s %T@\n' | sort; }
+files_before=$(run_files)
+link
+status=$?
+[ $status -eq 0 ] && tail -n 5 "$log" | grep -q "continue: nothing to do: the checkpoint" || {
+    echo "a link after the run's end gave status $status:"; tail -n 20 "$log"; exit 1; }
+[ "$(run_files)" = "$files_before" ] || {
+    echo "a link after the run's end changed the run's files"; exit 1; }
 
 # A second case in the same folder: its first link starts it (another case's checkpoints
 # were taken for its own, and the restart stopped with status 1); 20 steps are enough.
