@@ -17,7 +17,7 @@ module sph_schedule
         simulation_write_forces, simulation_log_forces, simulation_log_levels, &
         simulation_neighbours_per_particle, simulation_synchronised
     use sph_step_timers, only: timers_split_line
-    use sph_signals, only: signal_received
+    use sph_signals, only: signal_received, signal_name
     implicit none
     private
     public :: schedule_t, schedule_init, schedule_dt_cap, schedule_after_step
@@ -51,8 +51,6 @@ module sph_schedule
         real(wp) :: wall_limit = 0.0_wp          !< s of wall time before stopping; 0 = none
         character(len=:), allocatable :: stopped_by !< why the run stopped early ('' = it did not)
     end type schedule_t
-
-    integer, parameter :: SIGTERM = 15   !< POSIX (Linux and the BSDs)
 
 contains
 
@@ -225,7 +223,7 @@ contains
         end if
     end subroutine after_synchronised_step
 
-    !> A scheduler's SIGTERM or SIGUSR1 on any rank, or the wall-time limit on rank 0's clock:
+    !> A scheduler's SIGTERM or SIGUSR1 (or a Ctrl-C's SIGINT) on any rank, or the wall-time limit on rank 0's clock:
     !> the run ends after this step with a checkpoint (collective).
     subroutine check_stop_request(sched, env)
         type(schedule_t), intent(inout) :: sched
@@ -236,8 +234,7 @@ contains
         signal = global_max(env, int(signal_received(), i8))
         if (signal > 0) then
             write(text, '(a,i0,a)') 'signal ', signal, ' ('
-            sched%stopped_by = trim(text) // merge('SIGTERM', 'SIGUSR1', signal == SIGTERM) &
-                // ')'
+            sched%stopped_by = trim(text) // signal_name(int(signal)) // ')'
         else if (sched%wall_limit > 0.0_wp) then
             call wall_clock(wall_now)
             if (global_max(env, merge(wall_now - sched%wall_start, 0.0_wp, env%rank == 0)) &
