@@ -18,6 +18,32 @@ submodule (sph_stepper) sph_stepper_setup
 
 contains
 
+    !> The automatic sound speed is made for the input's velocity scale (walls, bodies, body
+    !> force: sph_physics); a particle file's flow may be faster (a developed profile given as
+    !> the start of a slower run: doc/output.md's example, 0.01 m/s in a channel of 2.5e-5
+    !> m/s, stopped at its first step as faster than the sound speed). Refused, naming the
+    !> key, when its fastest fluid particle exceeds the scale by more than 10 % (collective).
+    subroutine check_file_speeds(sim, env, cfg)
+        type(simulation_t), intent(in) :: sim
+        type(mpi_env_t), intent(in) :: env
+        type(config_t), intent(in) :: cfg
+        real(wp) :: fastest
+        integer :: i
+        if (cfg%fluid%sound_speed > 0.0_wp .or. cfg%fluid%velocity_scale > 0.0_wp) return
+        fastest = 0.0_wp
+        do i = 1, sim%p%n_owned
+            if (sim%p%kind(i) == KIND_FLUID) fastest = max(fastest, norm2(sim%p%v(:, i)))
+        end do
+        fastest = global_max(env, fastest)
+        if (fastest > 1.1_wp * sim%phys%velocity_scale) call fatal_collective('set-up', &
+            "&domain initial_particles: the file's fastest fluid particle moves at " // &
+            sci_text(fastest, 4) // ' m/s, above the velocity scale of the automatic ' // &
+            'sound speed (' // sci_text(sim%phys%velocity_scale, 4) // ' m/s, from the ' // &
+            'walls, bodies and body force: c = ' // sci_text(sim%phys%c, 4) // ' m/s); ' // &
+            'give &fluid velocity_scale (at least ' // sci_text(fastest, 4) // &
+            ') or sound_speed')
+    end subroutine check_file_speeds
+
     module procedure simulation_setup
         integer :: stat
         integer, allocatable :: order(:)
@@ -36,6 +62,7 @@ contains
             call read_initial_particles(env, cfg, sim%phys, sim%solids, &
                 trim(cfg%domain%initial_particles), sim%p, stat, errmsg)
             if (stat /= 0) call fatal_collective('set-up', errmsg)
+            call check_file_speeds(sim, env, cfg)
             call log_info('particles: read from ' // trim(cfg%domain%initial_particles))
         else if (multires(sim)) then
             call create_level_particles(env, cfg, sim%level_phys, sim%solids, sim%domain, &
@@ -66,9 +93,47 @@ contains
         call particles_gather(sim%p, order)
         call halo_setup(sim%halo, sim%domain, halo_reach(sim))
         call simulation_prepare_neighbours(sim, env)
+        if (len_trim(cfg%domain%initial_particles) > 0) call check_file_gaps(sim, env, cfg)
         call start_levels(sim, env)
         call log_setup(sim, env)
     end procedure simulation_setup
+
+    !> A particle file whose fluid particles sit on top of each other (two at one place, a
+    !> row written twice with new ids) ran without a word: the pair's forces vanish at r = 0
+    !> and the two move as one particle of twice the mass. Refused when any fluid particle
+    !> lies within COINCIDENT_GAP dx of another (no SPH arrangement holds such a pair; the
+    !> neighbour list holds every pair within the support, periodic images included).
+    subroutine check_file_gaps(sim, env, cfg)
+        type(simulation_t), intent(in) :: sim
+        type(mpi_env_t), intent(in) :: env
+        type(config_t), intent(in) :: cfg
+        real(wp), parameter :: COINCIDENT_GAP = 0.01_wp
+        integer(i8) :: n_close, first
+        real(wp) :: gap2
+        integer :: i, k, j
+        gap2 = (COINCIDENT_GAP * cfg%domain%dx)**2
+        n_close = 0
+        first = huge(1_i8)
+        do i = 1, sim%p%n_owned
+            if (sim%p%kind(i) /= KIND_FLUID) cycle
+            do k = sim%nl%start(i), sim%nl%start(i + 1) - 1
+                j = sim%nl%index(k)
+                if (sim%p%kind(j) /= KIND_FLUID) cycle
+                if (sum((sim%p%x(:, i) - sim%p%x(:, j))**2) >= gap2) cycle
+                n_close = n_close + 1
+                first = min(first, sim%p%id(i), sim%p%id(j))
+                exit
+            end do
+        end do
+        n_close = global_sum(env, n_close)
+        if (n_close == 0) return
+        first = -global_max(env, -first)
+        call fatal_collective('set-up', "&domain initial_particles: the file '" // &
+            trim(cfg%domain%initial_particles) // "' has fluid particles within " // &
+            sci_text(COINCIDENT_GAP, 2) // ' dx of another (' // int_text(n_close) // &
+            ' of them with a partner listed; the smallest id ' // int_text(first) // &
+            '): two particles at one place move as one; remove the copies')
+    end subroutine check_file_gaps
 
     !> Multi-resolution bookkeeping at the start of a run or restart: the next unused id and
     !> each level's real mass, the reference of the mass drift in the log (collective).

@@ -140,12 +140,20 @@ contains
         force = norm2(phys%body_force)
         velocity = cfg%fluid%velocity_scale
         if (velocity <= 0.0_wp) then
-            ! fastest wall, or the peak of the Poiseuille profile the body force drives
+            ! fastest wall or body, or the peak of the Poiseuille profile the body force
+            ! drives (a moving body was left out: a cylinder drawn through resting fluid was
+            ! refused as having no velocity scale, and one at 1 cm/s in a 2.5e-5 m/s channel
+            ! outran the sound speed at its fourth step)
             velocity = 0.0_wp
             do f = 1, n_faces
                 if (cfg%domain%is_wall(f)) &
                     velocity = max(velocity, norm2(cfg%domain%wall_velocity(:, f)))
             end do
+            if (allocated(cfg%bodies)) then
+                do f = 1, size(cfg%bodies)
+                    velocity = max(velocity, norm2(cfg%bodies(f)%velocity))
+                end do
+            end if
             if (cfg%fluid%nu > 0.0_wp) &
                 velocity = max(velocity, force * length**2 / (8.0_wp * cfg%fluid%nu))
         end if
@@ -165,8 +173,8 @@ contains
             if (.not. (phys%c > 0.0_wp)) then
                 stat = 1
                 errmsg = '&fluid sound_speed = 0 asks for the automatic (Morris) sound ' // &
-                    'speed, but this flow has no velocity scale (resting walls, no body ' // &
-                    'force): give ' // &
+                    'speed, but this flow has no velocity scale (resting walls and bodies, ' // &
+                    'no body force): give ' // &
                     '&fluid sound_speed > 0 or &fluid velocity_scale > 0'
                 return
             end if

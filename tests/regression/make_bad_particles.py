@@ -70,6 +70,14 @@ def main(good, kind, out):
         # the health check takes 0.2 h, and so does a file start
         first = np.flatnonzero(data["kind"] == 0)[0]
         data["position"][first, 1] = -(0.1 if kind == "fluid_in_slack" else 0.3) * 3.25e-5
+    elif kind == "coincident":
+        # a second fluid particle on the first's place (a row written twice, new ids)
+        fluid = np.flatnonzero(data["kind"] == 0)
+        data["position"][fluid[1]] = data["position"][fluid[0]]
+    elif kind == "too_fast":
+        # a start 400 times faster than the flow the input's body force drives
+        data["velocity"] = np.zeros((len(data["id"]), 3))
+        data["velocity"][data["kind"] == 0, 0] = 0.01
     else:
         sys.exit(f"make_bad_particles: unknown kind '{kind}'")
     with h5py.File(out, "w") as f:
