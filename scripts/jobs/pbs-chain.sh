@@ -1,6 +1,8 @@
 #!/bin/bash
 # PBS job that runs sphremesh and resubmits itself until the run reaches t_end.
 # Set &run wall_time_limit a few minutes below the walltime. Then: qsub scripts/jobs/pbs-chain.sh
+# Submit it from the top of the checkout. The program: $SPHREMESH if set, else sphremesh on
+# PATH, else build/bin/sphremesh, else build/release/bin/sphremesh (scripts/jobs/find-sphremesh).
 #PBS -N sphremesh
 #PBS -l select=1:ncpus=4:mpiprocs=4
 #PBS -l walltime=01:00:00
@@ -14,6 +16,7 @@ link=${SPHREMESH_CHAIN_LINK:-1}
 scripts/jobs/sphremesh-chain -n "$RANKS" -i "$INPUT" -o "$OUTPUT" -l mpirun
 status=$?
 if [ $status -eq 75 ] && [ "$link" -lt "$MAX_JOBS" ]; then
-    qsub -v SPHREMESH_CHAIN_LINK=$((link + 1)) "$0"
+    # (PBS passes no environment on by itself: the program given as qsub -v SPHREMESH=... too)
+    qsub -v "SPHREMESH_CHAIN_LINK=$((link + 1))${SPHREMESH:+,SPHREMESH=$SPHREMESH}" "$0"
 fi
 exit $status

@@ -1,6 +1,8 @@
 #!/bin/bash
 # SLURM job that runs sphremesh and resubmits itself until the run reaches t_end.
 # Edit the #SBATCH lines and the three settings below, then: sbatch scripts/jobs/slurm-chain.sh
+# Submit it from the top of the checkout. The program: $SPHREMESH if set, else sphremesh on
+# PATH, else build/bin/sphremesh, else build/release/bin/sphremesh (scripts/jobs/find-sphremesh).
 #SBATCH --job-name=sphremesh
 #SBATCH --ntasks=4
 #SBATCH --time=01:00:00
