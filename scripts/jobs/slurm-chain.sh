@@ -15,6 +15,12 @@ MAX_JOBS=20                         # a safety stop for the chain
 
 cd "${SLURM_SUBMIT_DIR:-.}" || exit 1
 link=${SPHREMESH_CHAIN_LINK:-1}
+# A signal to the whole job (the time limit, scancel, --signal=B:USR1) reaches this script
+# too: it waits for the link, which stops with a checkpoint and status 75, and submits the next
+# job (it died at once with status 143 before, submitted nothing and left the link running on
+# its own)
+trap 'echo "sphremesh chain job: got a signal; waiting for the link to stop" >&2' \
+    TERM INT HUP USR1
 scripts/jobs/sphremesh-chain -n "${SLURM_NTASKS:-1}" -i "$INPUT" -o "$OUTPUT" -l srun
 status=$?
 if [ $status -eq 75 ] && [ "$link" -lt "$MAX_JOBS" ]; then
