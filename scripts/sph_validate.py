@@ -28,14 +28,19 @@ import re
 import subprocess
 import sys
 
-import numpy as np
-
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 
-import sph_error_table  # noqa: E402
-import sph_snapshot  # noqa: E402
+# --help and --list need none of the measuring tools: scripts/validate runs them with any
+# python3, before install-deps has made the venv (numpy, h5py)
+try:
+    import numpy as np
+    import sph_error_table
+    import sph_snapshot
+    MISSING_TOOLS = None
+except ImportError as exc:
+    MISSING_TOOLS = exc
 
 PYTHON = sys.executable
 
@@ -961,6 +966,10 @@ def main(argv=None):
         for name, (func, long_case) in CASES.items():
             print(f"{name:16s} {'(long) ' if long_case else ''}{func.__doc__.split(chr(10))[0]}")
         return 0
+    if MISSING_TOOLS is not None:
+        print(f"validate: {MISSING_TOOLS}: run scripts/install-deps (scripts/validate does)",
+              file=sys.stderr)
+        return 2
     if not os.path.exists(args.binary):
         print(f"validate: {args.binary} is missing; scripts/validate builds it", file=sys.stderr)
         return 2
