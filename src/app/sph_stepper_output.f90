@@ -330,7 +330,8 @@ contains
         path = snapshot_filename(trim(sim%cfg%output%output_dir), trim(sim%cfg%run%case_name), &
             sim%step)
         call write_snapshot(env, sim%p, path, sim%time, sim%step, sim%cfg%domain%dimension, &
-            code_version, sim%input_text, stat, errmsg, with_virtual=writes_virtual(sim))
+            code_version, sim%input_text, stat, errmsg, with_virtual=writes_virtual(sim), &
+            dx=sim%cfg%domain%dx)
         ! (the folder is the user's key: named, since the message gives the path only)
         if (stat /= 0) call fatal_collective('output', errmsg // ' (&output output_dir)', &
             STATUS_OUTPUT_FAILED, abort=stat == SNAPSHOT_NOT_CLOSED)

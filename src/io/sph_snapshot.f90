@@ -79,7 +79,7 @@ contains
     !> Write one snapshot collectively (every rank, also one without particles). The text
     !> arguments must be the same on every rank (they become attributes).
     subroutine write_snapshot(env, p, path, time, step, dimension, code_version, input_text, &
-                              stat, errmsg, with_virtual)
+                              stat, errmsg, with_virtual, dx)
         type(mpi_env_t), intent(in) :: env
         type(particles_t), intent(inout) :: p
         character(len=*), intent(in) :: path, code_version, input_text
@@ -89,11 +89,16 @@ contains
         integer, intent(out), optional :: stat
         character(len=:), allocatable, intent(out), optional :: errmsg
         logical, intent(in), optional :: with_virtual   !< rows for virtual particles (default)
+        !> the particle spacing of the state (level 0's), stored as the root attribute 'dx' as
+        !> a checkpoint stores it: after an in-run refine or coarsen it differs from the
+        !> stored input's &domain dx, and the post-processing read the old one (fz43)
+        real(wp), intent(in), optional :: dx
         type(h5_file_t) :: file
         integer :: my_stat
         character(len=:), allocatable :: message
         call snapshot_begin(env, p, path, time, step, dimension, code_version, input_text, &
             file, my_stat, message, with_virtual)
+        if (my_stat == 0 .and. present(dx)) call h5_write_attribute(file, 'dx', dx)
         if (my_stat == 0) call snapshot_end(env, path, file, my_stat, message)
         call finish(my_stat, message, 'write_snapshot', stat)
         if (present(errmsg)) errmsg = message

@@ -2,7 +2,8 @@
 # Regression: remeshing during a run (&remesh). Poiseuille at L/20 with same-level remeshing
 # every 10 steps: the log states each remesh (counts, mass and momentum conserved to 1e-12,
 # cost) and the run ends normally; then the same case with mode = 'refine', every_time =
-# 0.01 s refines once per 0.01 s, and its final checkpoint records the new spacing.
+# 0.01 s refines once per 0.01 s, and its last snapshot records the new spacing (refined
+# again offline from there).
 # usage: check_remesh_in_run.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM INPUT WORKDIR
 set -u
 mpiexec=$1 np_flag=$2 np=$3 extra=$4 program=$5 input=$6 work=$7
@@ -31,4 +32,13 @@ run refine.nml > refine.log 2>&1 || fail "the run with refinement every 0.01 s f
     fail "expected 2 refinements (t = 0.01, 0.02 s):" refine.log
 grep -q "fluid particles 200 -> 800, dx  5.000E-05 ->  2.500E-05 m" refine.log || \
     fail "unexpected first refinement:" refine.log
+# the last snapshot records the spacing it holds (attribute dx), so an offline refinement of
+# it starts from there: it took the stored input's dx (5e-5 m, two refinements before) and
+# made particles 2.5e-5 apart out of a set 1.25e-5 apart
+last=$(ls refine/*_0*.h5 | grep -v checkpoint | sort | tail -1)
+run --remesh refine "$last" offline.h5 > offline.log 2>&1 || \
+    fail "the offline refinement of $last failed:" offline.log
+grep -q "fluid particles 3200 -> 12800, dx  1.250E-05 ->  6.250E-06 m" offline.log || \
+    fail "the offline refinement of the last snapshot did not start from its spacing:" \
+    offline.log
 echo "same-level: $n remeshes in $steps steps; refine: $(grep -c '^remesh refine' refine.log)"
