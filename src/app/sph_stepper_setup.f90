@@ -178,7 +178,7 @@ contains
         character(len=:), allocatable :: path, skipped, errmsg, stored_input, index_text
         character(len=:), allocatable :: mismatch
         type(config_t) :: stored
-        integer :: stat, fluid_stat, check_stat
+        integer :: stat, fluid_stat, check_stat, i
         logical :: same_layout, is_directory
         character(len=256) :: line
         real(wp) :: stored_dx
@@ -350,6 +350,11 @@ contains
                 'match its decomposition; the particles are handed to their owners')
             call migrate(sim, env)
         end if
+        ! each particle's smoothing length is its level's kernel's, the input's: an input
+        ! that changes &numerics kernel or h_factor went on writing the checkpoint's (fz45)
+        do i = 1, sim%p%n_owned
+            sim%p%h(i) = sim%level_phys(sim%p%level(i))%kernel%h
+        end do
         if (len(walls_changed) > 0) call lay_walls_again(sim, env, what, walls_changed)
         call refine_if_uniform(sim, env, what)
         call halo_setup(sim%halo, sim%domain, halo_reach(sim))

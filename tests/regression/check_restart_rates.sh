@@ -64,6 +64,14 @@ sed -e 's/^ *t_end = .*/    t_end = 1.0e-5/' -e "s#^ *output_dir = .*#    output
 run "$np" wider0.nml > wider0.log 2>&1 || fail "the fresh wider run failed:" wider0.log
 [ "$(grep '^particles:' wider.log)" = "$(grep '^particles:' wider0.log)" ] || \
     fail "the walls laid again differ from a fresh start's:" wider.log
+# and every particle's smoothing length in its files (output_dir 'extended', the extended
+# run's set aside) is the wider kernel's, 2 dx (before: the checkpoint's 1.3 dx went on)
+"$python" -c "
+import sys, h5py, numpy as np
+h = h5py.File(sys.argv[1], 'r')['particles/smoothing_length'][()]
+sys.exit(0 if np.all(h == 2 * 5.0e-5) else 'smoothing lengths %s, not 2 dx' % np.unique(h))
+" "$(last extended)" > h.log 2>&1 || \
+    fail "the wider run's files keep the checkpoint's smoothing length:" h.log
 # a time step below the time's resolution stops with a health failure naming the limits
 # (before: thousands of steps at one time, writing checkpoints, until killed)
 sed -e "s/^&numerics/\&numerics\n    fixed_dt = 1.0e-30/" extended.nml > frozen.nml
