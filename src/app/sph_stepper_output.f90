@@ -7,7 +7,7 @@
 submodule (sph_stepper) sph_stepper_output
     use sph_logger, only: fixed_text, mb_text, int_text
     use sph_mpi_env, only: global_min
-    use sph_particles, only: KIND_VIRTUAL
+    use sph_particles, only: KIND_VIRTUAL, KIND_WALL
     use sph_memory, only: peak_resident_bytes, startup_memory_bytes
     use sph_reference, only: relative_l2_error, relative_l2_from_sums, reference_resolved, &
         UNRESOLVED, error_percent_text
@@ -145,21 +145,27 @@ contains
     module procedure simulation_check_report
         type(timestep_limits_t) :: lim
         integer :: level, max_level
-        integer(i8) :: counts(3), pairs, mine
+        integer(i8) :: counts(4), pairs, mine
         real(wp) :: bytes, base, limit_value, remaining
         character(len=256) :: line
         character(len=:), allocatable :: limiting
         max_level = int(global_max(env, int(maxval(sim%p%level(1:sim%p%n_owned), &
             mask=sim%p%n_owned > 0), i8)))
         do level = 0, max(max_level, 0)
+            ! (virtual particles apart: they were counted as walls, fz43)
             counts = global_sum(env, [ &
                 int(count(sim%p%kind(1:sim%p%n_owned) == KIND_FLUID .and. &
                     sim%p%level(1:sim%p%n_owned) == level), i8), &
-                int(count(sim%p%kind(1:sim%p%n_owned) /= KIND_FLUID .and. &
+                int(count(sim%p%kind(1:sim%p%n_owned) == KIND_WALL .and. &
+                    sim%p%level(1:sim%p%n_owned) == level), i8), &
+                int(count(sim%p%kind(1:sim%p%n_owned) == KIND_VIRTUAL .and. &
                     sim%p%level(1:sim%p%n_owned) == level), i8), &
                 int(count(sim%p%level(1:sim%p%n_owned) == level), i8)])
-            write(line, '(a,i0,a,i0,a,i0,a,i0,a)') 'check: level ', level, ': ', counts(3), &
-                ' particles (', counts(1), ' fluid, ', counts(2), ' wall)'
+            write(line, '(a,i0,a,i0,a,i0,a,i0,a)') 'check: level ', level, ': ', counts(4), &
+                ' particles (', counts(1), ' fluid, ', counts(2), ' wall'
+            if (counts(3) > 0) write(line, '(a,a,i0,a)') trim(line), ', ', counts(3), &
+                ' virtual'
+            line = trim(line) // ')'
             call log_info(trim(line))
         end do
         pairs = global_sum(env, int(sim%nl%n_pairs, i8))

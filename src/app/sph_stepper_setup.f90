@@ -603,6 +603,7 @@ contains
         type(simulation_t), intent(in) :: sim
         type(mpi_env_t), intent(in) :: env
         character(len=256) :: line
+        integer(i8) :: counts(3)
         write(line, '(a,es12.5,a,es12.5,a,es12.5,a)') 'physics: h = ', sim%phys%kernel%h, &
             ' m (kernel ' // kernel_name(sim%phys%kernel%id) // ', support ', &
             sim%phys%kernel%support, ' m), c = ', sim%phys%c, ' m/s'
@@ -616,10 +617,14 @@ contains
                 sim%phys%transport_pressure, ' Pa'
             call log_info(trim(line))
         end if
-        write(line, '(a,i0,a,i0,a,f6.3)') 'particles: ', &
-            global_sum(env, int(sim%p%n_owned, i8)), ' real (fluid ', &
-            global_sum(env, int(count(sim%p%kind(1:sim%p%n_owned) == KIND_FLUID), i8)), &
-            '), load imbalance ', domain_imbalance(env, sim%p%n_owned)
+        ! (the virtual particles of a multi-resolution run apart: they were counted as real)
+        counts = global_sum(env, [int(count(sim%p%kind(1:sim%p%n_owned) /= KIND_VIRTUAL), i8), &
+            int(count(sim%p%kind(1:sim%p%n_owned) == KIND_FLUID), i8), &
+            int(count(sim%p%kind(1:sim%p%n_owned) == KIND_VIRTUAL), i8)])
+        write(line, '(a,i0,a,i0,a)') 'particles: ', counts(1), ' real (fluid ', counts(2), ')'
+        if (counts(3) > 0) write(line, '(a,a,i0,a)') trim(line), ', ', counts(3), ' virtual'
+        write(line, '(a,a,f6.3)') trim(line), ', load imbalance ', &
+            domain_imbalance(env, sim%p%n_owned)
         call log_info(trim(line))
     end subroutine log_setup
 end submodule sph_stepper_setup

@@ -18,6 +18,13 @@ if(SHIPPED)
     if(remesh)
         list(APPEND expects "check: &remesh mode = '${CMAKE_MATCH_1}': .*MB")
     endif()
+    # a multi-resolution run: its virtual particles counted apart (they were counted as
+    # real and, by --check, as walls)
+    if(text MATCHES "\n *&region")
+        list(APPEND expects
+            "particles: [0-9]+ real \\(fluid [0-9]+\\), [0-9]+ virtual, load imbalance"
+            "check: level 1: [0-9]+ particles \\([0-9]+ fluid, [0-9]+ wall, [0-9]+ virtual\\)")
+    endif()
 elseif(HUGE_T_END)
     # t_end = 1e20: no step count beyond an integer's range; the default max_steps ends the
     # run long before (said nothing before)
