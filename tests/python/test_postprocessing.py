@@ -178,6 +178,24 @@ def run(script, *args):
                           capture_output=True, text=True, env=env, timeout=300)
 
 
+def call_main(module, *args):
+    """(status, stderr) of a script's main(argv) called in this process (faster than run()
+    for a script that imports matplotlib); an exception fails the test as a traceback."""
+    import contextlib
+    import importlib
+    import io
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        try:
+            status = importlib.import_module(module).main(list(map(str, args)))
+        except SystemExit as stop:
+            status = stop.code if isinstance(stop.code, int) else 1
+            if not isinstance(stop.code, int) and stop.code is not None:
+                print(stop.code, file=sys.stderr)
+    return status, err.getvalue()
+
+
 def is_png(path, min_bytes=5000):
     if not os.path.isfile(path) or os.path.getsize(path) < min_bytes:
         return False
@@ -492,6 +510,23 @@ class Test3DCouette(TestSnapshot, TestErrorTable, TestPlots, TestXdmf):
         self.assertTrue(is_png(out, 3000))
         n_layer = sum(np.abs(sph_snapshot.load(self.paths[-1])["position"][:, 2] - 0.25e-3) < 0.5e-4)
         self.assertIn(f"{n_layer} particles", result.stdout)
+
+
+    def test_reference_of_a_fluid_at_rest_refused(self):
+        # --case poiseuille on a Couette flow (no body force): the reference is 0 and the
+        # velocities' norm was printed as a relative error ('0.0181%'); refused as the program
+        # refuses a flow with no drive, also by the profile plot (the same function)
+        with self.assertRaisesRegex(ValueError, "needs a body force"):
+            sph_error_table.snapshot_error(self.paths[-1], "poiseuille")
+        result = run("sph_error_table.py", "--case", "poiseuille", self.paths[-1])
+        self.assertCleanFailure(result, "needs a body force", self.paths[-1])
+        self.assertNotIn("%", result.stdout)
+        out = os.path.join(self.folder, "never_at_rest.png")
+        status, err = call_main("sph_plot_profiles", "--case", "poiseuille", self.paths[-1],
+                                "-o", out)
+        self.assertEqual(status, 1, err)
+        self.assertIn("needs a body force", err)
+        self.assertFalse(os.path.exists(out))
 
 
 class TestCouettePoiseuille(unittest.TestCase):
