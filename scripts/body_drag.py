@@ -42,7 +42,7 @@ import sys
 import h5py
 import numpy as np
 
-from sph_snapshot import SnapshotError, complete_snapshots
+from sph_snapshot import SnapshotError, complete_snapshots, header, spacing
 
 
 def snapshots(output_dir, case):
@@ -56,11 +56,15 @@ def snapshots(output_dir, case):
     return found
 
 
-def input_text(found):
-    """The resolved input stored in the newest of the snapshots `found` (snapshots())."""
-    with h5py.File(found[-1][1], 'r') as f:
-        text = f.attrs['input']
-    return text.decode() if isinstance(text, bytes) else text
+def input_and_spacing(found):
+    """The resolved input stored in the newest of the snapshots `found` (snapshots()) and its
+    spacing of level 0 (sph_snapshot.spacing: the file's attribute dx, else the input's; the
+    input keeps the spacing the run began with, also after an in-run remesh)."""
+    try:
+        head = header(found[-1][1])
+        return head['attrs'].get('input', ''), spacing(head)
+    except SnapshotError as problem:
+        raise SystemExit(f'body_drag: {problem}') from None
 
 
 def values(text, key, group=None):
@@ -217,11 +221,10 @@ def main():
     for out in args.output_dirs:
         case = case_of(out, args.case)
         found = snapshots(out, case)
-        text = input_text(found)
+        text, dx = input_and_spacing(found)
         dim = int(numbers(values(text, 'dimension'))[0])
         lo = np.array(numbers(values(text, 'box_lo'))[:dim])
         hi = np.array(numbers(values(text, 'box_hi'))[:dim])
-        dx = numbers(values(text, 'dx', 'domain'))[0]
         rho0 = numbers(values(text, 'rho0'))[0]
         nu = numbers(values(text, 'nu'))[0]
         force = np.array(numbers(values(text, 'body_force'))[:dim])

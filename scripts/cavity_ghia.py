@@ -8,8 +8,9 @@ At each tabulated point of the two centre lines (15 each, the end points on the 
 out) the velocity is the Gaussian-weighted mean of the fluid particles within 3 dx (weight
 exp(-d^2/dx^2)), averaged over the snapshots of the last `fraction` of the run (at least
 `min-snapshots` of them). Errors are in percent of the lid speed U; the lid is the moving
-face (yhi), the box, dx and U are read from the input stored in the snapshots. Prints one
-line per point and the RMS and largest error; exits 1 when a --max-* threshold is exceeded.
+face (yhi), the box and U are read from the input stored in the snapshots, dx from the newest
+one (its attribute dx, else its input's &domain dx). Prints one line per point and the RMS
+and largest error; exits 1 when a --max-* threshold is exceeded.
 """
 import argparse
 import os
@@ -19,7 +20,7 @@ import sys
 import h5py
 import numpy as np
 
-from sph_snapshot import SnapshotError, complete_snapshots
+from sph_snapshot import SnapshotError, complete_snapshots, header, spacing
 
 # Ghia et al. (1982): u on the vertical centre line x = 1/2, v on the horizontal one y = 1/2
 GHIA_Y = np.array([0.0547, 0.0625, 0.0703, 0.1016, 0.1719, 0.2813, 0.4531, 0.5000, 0.6172,
@@ -52,6 +53,17 @@ def snapshots(output_dir, case):
     """(time, path) of the run's complete snapshots; unreadable ones skipped with a line."""
     try:
         return complete_snapshots(output_dir, case, 'cavity_ghia')
+    except SnapshotError as problem:
+        raise SystemExit(f'cavity_ghia: {problem}') from None
+
+
+def input_and_spacing(path):
+    """The resolved input stored in a snapshot and its spacing of level 0 (sph_snapshot.spacing:
+    the file's attribute dx, else the input's; the input keeps the spacing the run began
+    with, also after an in-run remesh)."""
+    try:
+        head = header(path)
+        return head['attrs'].get('input', ''), spacing(head)
     except SnapshotError as problem:
         raise SystemExit(f'cavity_ghia: {problem}') from None
 
@@ -103,12 +115,9 @@ def main():
         raise SystemExit(f'cavity_ghia: only {len(last)} snapshots in the last '
                          f'{args.fraction:g} of the run (t >= {(1 - args.fraction) * t_end:g} s);'
                          f' need {args.min_snapshots}: write snapshots more often')
-    with h5py.File(last[-1][1], 'r') as f:
-        text = f.attrs['input']
-        text = text.decode() if isinstance(text, bytes) else text
+    text, dx = input_and_spacing(last[-1][1])
     lo = np.array(input_values(text, 'box_lo')[:2])
     hi = np.array(input_values(text, 'box_hi')[:2])
-    dx = input_values(text, 'dx')[0]
     nu = input_values(text, 'nu')[0]
     walls = np.array(input_values(text, 'wall_velocity')).reshape(-1, 3)
     lid_speed = float(np.linalg.norm(walls[3]))

@@ -18,18 +18,20 @@ coordinate across the channel (the axis whose faces are walls), the flow runs al
 force or the moving wall, as the program takes them.
 """
 import argparse
+import os
 import sys
 
 import numpy as np
 
 try:
-    import h5py
     import f90nml
 except ImportError as missing:  # pragma: no cover - a message, not a traceback
     sys.exit(f"sph_error_table: {missing.name} is missing; run scripts/install-deps "
              "and use .venv/bin/python")
 
-import sph_analytic
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import sph_analytic  # noqa: E402
+import sph_snapshot  # noqa: E402
 
 
 def channel_parameters(text, case=None):
@@ -92,20 +94,19 @@ def no_drive(case):
 
 
 def snapshot_error(path, case=None, steady=False, level=None, band=None, outside=None):
-    with h5py.File(path, "r") as f:
-        time = float(f.attrs["time"])
-        text = f.attrs["input"]
-        text = text.decode() if isinstance(text, bytes) else str(text)
-        stored_dx = float(f.attrs["dx"]) if "dx" in f.attrs else 0.0
-        parts = f["particles"]
-        kind = parts["kind"][:]
-        pos = parts["position"][:]
-        vel = parts["velocity"][:]
-        levels = parts["level"][:] if "level" in parts else np.zeros_like(kind)
-    par = channel_parameters(text, case)
-    if stored_dx > 0:
-        # (a remeshed checkpoint: its input keeps the spacing the run began with)
-        par["dx"] = stored_dx
+    """(time, channel_parameters with the file's spacing, relative L2 error or NaN where the
+    reference is round-off, number of particles summed) of a snapshot file, or of a
+    sph_snapshot.load() result. Raises ValueError (sph_snapshot.SnapshotError for a file that
+    is no complete snapshot) with a message naming the file."""
+    # (the loader's checks: a file without write_complete was used silently, a directory or
+    # another tool's file gave h5py's messages)
+    snap = path if isinstance(path, dict) else sph_snapshot.load(path)
+    path = snap["path"]
+    time = float(snap["time"])
+    kind, pos, vel, levels = snap["kind"], snap["position"], snap["velocity"], snap["level"]
+    par = channel_parameters(snap["attrs"].get("input", ""), case)
+    # (after an in-run remesh the stored input keeps the spacing the run began with)
+    par["dx"] = sph_snapshot.spacing(snap)
     case = par["case"]
     if par["axis"] is None:
         raise ValueError(f"{path}: not a channel (walls on both faces of one axis, the "
@@ -120,7 +121,8 @@ def snapshot_error(path, case=None, steady=False, level=None, band=None, outside
         fluid &= (normal < outside[0]) | (normal >= outside[1])
     if not fluid.any():
         # (an empty selection has no error: it printed 0 % before)
-        raise ValueError("no fluid particle in the selection (--level, --band, --outside)")
+        raise ValueError(f"{path}: no fluid particle in the selection (--level, --band, "
+                         "--outside)")
     y = wall_distance(par, pos[fluid])
     t = np.inf if steady else time
     exact_x = sph_analytic.channel(case, y, t, par)

@@ -6,7 +6,8 @@
 
 For every interface (a face of a &region box across the channel, read from the input stored in
 the snapshot, or given with --interfaces), the real fluid particles (kind 0, every level) in
-the bin of width --bin (default: &domain dx, the coarsest spacing) just below and just above it give a mean
+the bin of width --bin (default: the coarsest spacing, the file's root attribute dx, else the
+stored &domain dx: sph_snapshot.spacing) just below and just above it give a mean
 density and a mean streamwise velocity; the script prints both sides and the jump, the
 density jump in % of rho0 (the issue's criterion: below 0.2 %). With --figure, the profile of
 the streamwise velocity (particles coloured by level) and of the density in bins across the
@@ -15,36 +16,40 @@ snapshots given (uniform runs) are drawn as lines of their bin means for compari
 Exit status 1 when a density jump exceeds --limit (default 0.2 % of rho0).
 """
 import argparse
+import os
 import sys
 
 import numpy as np
 
 try:
-    import h5py
     import f90nml
 except ImportError as missing:  # pragma: no cover - a message, not a traceback
     sys.exit(f"sph_interface_profile: {missing.name} is missing; run scripts/install-deps "
              "and use .venv/bin/python")
 
-import sph_analytic
-from sph_error_table import channel_parameters
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import sph_analytic  # noqa: E402
+import sph_snapshot  # noqa: E402
+from sph_error_table import channel_parameters  # noqa: E402
 
 
 def load(path):
-    with h5py.File(path, "r") as f:
-        text = f.attrs["input"]
-        text = text.decode() if isinstance(text, bytes) else str(text)
-        parts = f["particles"]
-        data = {
-            "time": float(f.attrs["time"]),
-            "text": text,
-            "kind": parts["kind"][:],
-            "level": parts["level"][:] if "level" in parts else np.zeros(len(parts["kind"])),
-            "y": parts["position"][:, 1],
-            "u": parts["velocity"][:, 0],
-            "rho": parts["density"][:],
-        }
-    return data
+    """The columns of a snapshot this script uses, after the loader's checks (a file without
+    the write_complete marker was used silently, another tool's file gave "can't locate
+    attribute 'time'"); dx: the file's spacing of level 0 (sph_snapshot.spacing). Raises
+    sph_snapshot.SnapshotError naming the file."""
+    snap = sph_snapshot.load(path)
+    return {
+        "path": path,
+        "time": float(snap["time"]),
+        "text": snap["attrs"].get("input", ""),
+        "dx": sph_snapshot.spacing(snap),
+        "kind": snap["kind"],
+        "level": snap["level"],
+        "y": snap["position"][:, 1],
+        "u": snap["velocity"][:, 0],
+        "rho": snap["density"],
+    }
 
 
 def region_interfaces(text, y_lo, y_hi):
@@ -83,7 +88,8 @@ def main(argv=None):
     parser.add_argument("uniform", nargs="*", help="snapshots of uniform runs (figure only)")
     parser.add_argument("--interfaces", type=float, nargs="+", help="interface positions y (m)")
     parser.add_argument("--bin", type=float,
-                        help="bin width (m); default &domain dx, the coarsest spacing")
+                        help="bin width (m); default the coarsest spacing (the file's "
+                             "attribute dx, else its input's &domain dx)")
     parser.add_argument("--limit", type=float, default=0.2,
                         help="largest density jump allowed, in %% of rho0 (default 0.2)")
     parser.add_argument("--figure", help="write the profile figure here (PNG)")
@@ -98,7 +104,10 @@ def main(argv=None):
             raise ValueError("a channel with walls on the y faces, the flow along x and "
                              "(Couette) the upper wall moving is needed")
     except (OSError, KeyError, ValueError) as problem:
-        print(f"sph_interface_profile: {args.snapshot}: {problem}", file=sys.stderr)
+        text = str(problem)
+        if not isinstance(problem, sph_snapshot.SnapshotError):
+            text = f"{args.snapshot}: {text}"
+        print(f"sph_interface_profile: {text}", file=sys.stderr)
         return 1
     rho0 = float(f90nml.reads(data["text"])["fluid"]["rho0"])
     y_lo, y_hi = par["y0"], par["y0"] + par["width"]
@@ -111,7 +120,8 @@ def main(argv=None):
     if args.bin is not None and not args.bin > 0:
         print("sph_interface_profile: --bin must be positive (m)", file=sys.stderr)
         return 1
-    width = args.bin or float(f90nml.reads(data["text"])["domain"]["dx"])
+    # (the file's spacing of level 0: the stored input keeps the one the run began with)
+    width = args.bin or data["dx"]
     print(f"{args.snapshot}: t = {data['time']:.6g} s, bins of {width:.4g} m")
     print(f"{'interface y [m]':>16} {'rho below':>12} {'rho above':>12} {'jump [% rho0]':>14} "
           f"{'u below':>12} {'u above':>12}")
@@ -162,14 +172,13 @@ def draw(args, data, par, faces, width):
                       label=f"level {level}")
     edges = np.arange(par["y0"], par["y0"] + par["width"] + width / 2, width)
     centres = 0.5 * (edges[1:] + edges[:-1])
-    for path in [args.snapshot] + args.uniform:
-        other = data if path == args.snapshot else load(path)
+    for other in [data] + [load(path) for path in args.uniform]:
         sel = other["kind"] == 0
         sums = np.histogram(other["y"][sel], edges, weights=other["rho"][sel])[0]
         counts = np.histogram(other["y"][sel], edges)[0]
         with np.errstate(invalid="ignore"):
-            ax_rho.plot(sums / counts, centres, "-" if path == args.snapshot else "--",
-                        label=path.split("/")[-1])
+            ax_rho.plot(sums / counts, centres, "-" if other is data else "--",
+                        label=other["path"].split("/")[-1])
     for y0 in faces:
         for ax in (ax_u, ax_rho):
             ax.axhline(y0, color="grey", lw=0.6, ls=":")

@@ -113,15 +113,12 @@ def main(argv=None):
         series = []
         for path in files:
             snap = sph_snapshot.load(path)
-            par = channel_parameters(snap["input"], args.case)
-            # (a remeshed checkpoint's spacing: its attribute dx, not its input's)
-            if isinstance(snap["attrs"].get("dx"), (int, float)) and snap["attrs"]["dx"] > 0:
-                par["dx"] = float(snap["attrs"]["dx"])
-            case = par["case"]
+            case = channel_parameters(snap["input"], args.case)["case"]
             if case not in ("poiseuille", "couette"):
                 raise ValueError(f"{path}: the input has analytic = '{case}'; "
                                  "give --case poiseuille or --case couette")
-            time, _, error, nfluid = snapshot_error(path, case)
+            # (par["dx"]: the file's spacing, sph_snapshot.spacing, as the table's)
+            time, par, error, nfluid = snapshot_error(snap, case)
             if nfluid == 0:
                 raise ValueError(f"{path}: no fluid particles")
             if time == 0 and not args.initial:

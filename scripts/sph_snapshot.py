@@ -3,12 +3,14 @@
 
 As a module (post-processing scripts, with scripts/ on sys.path):
 
-    from sph_snapshot import load, list_snapshots
+    from sph_snapshot import header, list_snapshots, load, spacing
     snap = load("output/poiseuille/poiseuille_007575.h5")
     x = snap["position"]            # (N, 3) float64, m
     fluid = snap["kind"] == 0
     t = snap["attrs"]["time"]       # s (also snap["time"])
+    dx = spacing(snap)              # m, level 0 when written (attribute dx, else the input's)
     files = list_snapshots("output/poiseuille")      # sorted by step
+    head = header(files[-1])        # the checks and attributes without the particles
 
 As a command, a one-screen summary of each file:
 
@@ -56,6 +58,60 @@ def _plain(value):
     return value
 
 
+def _checked_attrs(f, path, check_format):
+    """The root attributes of an open file as plain values, after the checks every reader
+    makes: a sphremesh file, its write complete, of this format (check_format)."""
+    attrs = {key: _plain(value) for key, value in f.attrs.items()}
+    # (a file sphremesh did not write: an initial particle file, another tool's, was
+    # called an incomplete snapshot, the message of a write that crashed)
+    if "format" not in attrs and "write_complete" not in attrs:
+        raise SnapshotError(f"{path}: not a sphremesh snapshot or checkpoint (no "
+                            "format attribute: an initial particle file, or another "
+                            "tool's?)")
+    if attrs.get("write_complete") != 1:
+        raise SnapshotError(f"{path}: incomplete snapshot (no write_complete marker)")
+    if check_format and (attrs.get("format") != FORMAT
+                         or attrs.get("format_version") != FORMAT_VERSION):
+        raise SnapshotError(f"{path}: not a {FORMAT} file of format version "
+                            f"{FORMAT_VERSION} (format {attrs.get('format')!r}, "
+                            f"version {attrs.get('format_version')!r})")
+    for key in ("time", "step", "dimension"):
+        if key not in attrs:
+            raise SnapshotError(f"{path}: no root attribute '{key}'")
+    return attrs
+
+
+def _check_path(path):
+    if os.path.isdir(path):
+        # (h5py's errno dump, "Unable to synchronously open file (... errno = 21 ...)")
+        raise SnapshotError(f"{path}: a directory, not a snapshot file")
+    if not os.path.isfile(path):
+        raise SnapshotError(f"{path}: no such file")
+
+
+def _with_header(data, attrs, path):
+    data["attrs"] = attrs
+    for key in HEADER:
+        if key in attrs:
+            data[key] = attrs[key]
+    data["path"] = path
+    return data
+
+
+def header(path, check_format=True):
+    """The root attributes of a snapshot or checkpoint without its particles, after the
+    checks of load(): a dict with ``attrs``, ``path`` and the header attributes (``time``,
+    ``input``, ...) at the top level, as load() gives them. For the spacing (spacing()) or the
+    input of a file whose particles are not needed. Raises SnapshotError as load()."""
+    _check_path(path)
+    try:
+        with h5py.File(path, "r") as f:
+            attrs = _checked_attrs(f, path, check_format)
+    except OSError as problem:
+        raise SnapshotError(f"{path}: not a readable HDF5 file ({problem})") from None
+    return _with_header({}, attrs, path)
+
+
 def load(path, check_format=True):
     """All datasets of /particles (numpy arrays, N rows) and the root attributes.
 
@@ -66,24 +122,10 @@ def load(path, check_format=True):
     or unreadable file, a file without the write_complete marker (a write that did not
     finish) or of another format.
     """
-    if not os.path.isfile(path):
-        raise SnapshotError(f"{path}: no such file")
+    _check_path(path)
     try:
         with h5py.File(path, "r") as f:
-            attrs = {key: _plain(value) for key, value in f.attrs.items()}
-            # (a file sphremesh did not write: an initial particle file, another tool's, was
-            # called an incomplete snapshot, the message of a write that crashed)
-            if "format" not in attrs and "write_complete" not in attrs:
-                raise SnapshotError(f"{path}: not a sphremesh snapshot or checkpoint (no "
-                                    "format attribute: an initial particle file, or another "
-                                    "tool's?)")
-            if attrs.get("write_complete") != 1:
-                raise SnapshotError(f"{path}: incomplete snapshot (no write_complete marker)")
-            if check_format and (attrs.get("format") != FORMAT
-                                 or attrs.get("format_version") != FORMAT_VERSION):
-                raise SnapshotError(f"{path}: not a {FORMAT} file of format version "
-                                    f"{FORMAT_VERSION} (format {attrs.get('format')!r}, "
-                                    f"version {attrs.get('format_version')!r})")
+            attrs = _checked_attrs(f, path, check_format)
             if "particles" not in f or not isinstance(f["particles"], h5py.Group):
                 raise SnapshotError(f"{path}: no /particles group")
             data = {name: f["particles"][name][()] for name in f["particles"]
@@ -93,15 +135,7 @@ def load(path, check_format=True):
     missing = [name for name in FIELDS if name not in data]
     if missing:
         raise SnapshotError(f"{path}: /particles lacks {', '.join(missing)}")
-    for key in ("time", "step", "dimension"):
-        if key not in attrs:
-            raise SnapshotError(f"{path}: no root attribute '{key}'")
-    data["attrs"] = attrs
-    for key in HEADER:
-        if key in attrs:
-            data[key] = attrs[key]
-    data["path"] = path
-    return data
+    return _with_header(data, attrs, path)
 
 
 def namelist(snap):
@@ -111,23 +145,48 @@ def namelist(snap):
     return f90nml.reads(text)
 
 
+def spacing(snap):
+    """The spacing of level 0 (m) when a file was written: its root attribute ``dx`` where it
+    has one, else the &domain dx of its stored input.
+
+    The stored input keeps the spacing the run began with: after an in-run remesh (&remesh
+    mode = 'refine' or 'coarsen') or a restart at another spacing only the attribute is
+    right (checkpoints carry it, snapshots since the program writes it; an older snapshot
+    has only its input). ``snap``: a load() or header() result. Every script that needs the
+    spacing takes it from here. Raises SnapshotError (naming the file) when neither gives a
+    positive spacing."""
+    attrs = snap["attrs"]
+    path = snap.get("path", "snapshot")
+    if "dx" in attrs:
+        stored = attrs["dx"]
+        if (isinstance(stored, (int, float)) and not isinstance(stored, bool)
+                and np.isfinite(stored) and stored > 0):
+            return float(stored)
+        raise SnapshotError(f"{path}: root attribute dx = {stored!r} is not a spacing")
+    try:
+        dx = float(namelist(attrs.get("input", ""))["domain"]["dx"])
+    except Exception as problem:  # f90nml's errors, a missing group or key
+        raise SnapshotError(f"{path}: no root attribute dx and no &domain dx in the stored "
+                            f"input ({type(problem).__name__}: {problem})") from None
+    if not (np.isfinite(dx) and dx > 0):
+        raise SnapshotError(f"{path}: the stored input's &domain dx = {dx!r} is not a spacing")
+    return dx
+
+
 def geometry(snap):
-    """dimension, dx, box_lo (3), box_hi (3) of a loaded snapshot, from its input text (dx:
-    a remeshed checkpoint's attribute dx); the box and dx are estimated from the particles
-    if the input cannot be read."""
+    """dimension, dx, box_lo (3), box_hi (3) of a loaded snapshot: dx from spacing() (the
+    file's attribute dx, else its input's), the box from its input text; the box and dx are
+    estimated from the particles if neither can be read."""
     dim = int(snap["attrs"]["dimension"])
     try:
         domain = namelist(snap)["domain"]
-        dx = float(domain["dx"])
         lo = np.zeros(3)
         hi = np.zeros(3)
         lo[:dim] = np.asarray(domain["box_lo"], dtype=float)[:dim]
         hi[:dim] = np.asarray(domain["box_hi"], dtype=float)[:dim]
-        # a remeshed checkpoint's spacing is its root attribute dx: its input keeps the
-        # spacing the run began with (an L/10 coarsening was reported as L/20)
-        stored = snap["attrs"].get("dx")
-        if isinstance(stored, (int, float)) and stored > 0:
-            dx = float(stored)
+        # (a remeshed run's spacing: its input keeps the one the run began with, an L/10
+        # coarsening was reported as L/20)
+        dx = spacing(snap)
     except Exception:  # no or odd input text: estimate from the particles
         pos = snap["position"]
         h = snap["smoothing_length"]

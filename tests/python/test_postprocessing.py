@@ -529,6 +529,67 @@ class Test3DCouette(TestSnapshot, TestErrorTable, TestPlots, TestXdmf):
         self.assertFalse(os.path.exists(out))
 
 
+class TestSpacingAttribute(unittest.TestCase):
+    """The spacing of level 0 comes from a file's root attribute dx where it has one (after an
+    in-run remesh its stored input keeps the spacing the run began with: a refined channel
+    was reported at the starting dx/L), else from the input's &domain dx; one function of
+    the loader, used by every script."""
+
+    @classmethod
+    def setUpClass(cls):
+        cls.folder = tempfile.mkdtemp(prefix="sph_pp_spacing_")
+        width, dx, nu, force = 1.0e-3, 1.0e-4, 1.0e-6, 2.0e-4
+        box_hi = (0.3e-3, width, 0.0)
+        text = input_text("poiseuille", 2, box_hi, dx, nu, force, 0.0)
+        # the run refined once: particles at dx/2, the input still says dx
+        pos, kind = lattice(2, box_hi, dx / 2)
+        vel = np.zeros_like(pos)
+        fluid = kind == 0
+        vel[fluid, 0] = sph_analytic.poiseuille(pos[fluid, 1], 0.5, force, width, nu)
+        cls.plain = os.path.join(cls.folder, "plain_000010.h5")
+        cls.refined = os.path.join(cls.folder, "refined_000010.h5")
+        for path in (cls.plain, cls.refined):
+            write_snapshot(path, time=0.5, step=10, dim=2, text=text, pos=pos, kind=kind,
+                           vel=vel)
+        with h5py.File(cls.refined, "r+") as f:
+            f.attrs["dx"] = np.float64(dx / 2)
+
+    @classmethod
+    def tearDownClass(cls):
+        shutil.rmtree(cls.folder, ignore_errors=True)
+
+    def test_loader(self):
+        for path, dx in ((self.plain, 1.0e-4), (self.refined, 0.5e-4)):
+            snap = sph_snapshot.load(path)
+            self.assertEqual(sph_snapshot.spacing(snap), dx, path)
+            self.assertEqual(sph_snapshot.spacing(sph_snapshot.header(path)), dx, path)
+            self.assertEqual(sph_snapshot.geometry(snap)["dx"], dx, path)
+        result = run("sph_snapshot.py", self.refined)
+        self.assertIn("dx 5e-05 m", result.stdout, result.stderr)
+
+    def test_bad_attribute_refused(self):
+        snap = sph_snapshot.load(self.refined)
+        for bad in (0.0, -1e-4, float("nan"), "5e-5"):
+            snap["attrs"]["dx"] = bad
+            with self.assertRaisesRegex(ValueError, "root attribute dx"):
+                sph_snapshot.spacing(snap)
+
+    def test_scripts(self):
+        import body_drag
+        import cavity_ghia
+        import sph_interface_profile
+        par = sph_error_table.snapshot_error(self.refined)[1]
+        self.assertEqual(par["dx"], 0.5e-4, "sph_error_table (and sph_plot_profiles)")
+        self.assertEqual(sph_error_table.snapshot_error(self.plain)[1]["dx"], 1.0e-4)
+        result = run("sph_error_table.py", self.refined)
+        self.assertEqual(result.returncode, 0, result.stderr)
+        self.assertIn(" 0.0500 ", result.stdout, "dx/L of the refined file")
+        self.assertEqual(sph_interface_profile.load(self.refined)["dx"], 0.5e-4)
+        self.assertEqual(body_drag.input_and_spacing([(0.5, self.refined)])[1], 0.5e-4)
+        self.assertEqual(cavity_ghia.input_and_spacing(self.refined)[1], 0.5e-4)
+        self.assertEqual(cavity_ghia.input_and_spacing(self.plain)[1], 1.0e-4)
+
+
 class TestCouettePoiseuille(unittest.TestCase):
     """A Couette channel with a body force along the plate's motion: the reference is the sum
     of both series, as the program's (it was the Couette series alone: 37 % on a flow the
