@@ -11,31 +11,30 @@ peak speed, the measure used for rank-count invariance. Exit status 0 when every
 1 otherwise (also when the ids differ), 2 on unreadable input.
 """
 import argparse
+import os
 import sys
 
 import numpy as np
 
-try:
-    import h5py
-except ImportError:  # pragma: no cover - the venv always has it
-    sys.exit("sph_compare: h5py is missing (run scripts/install-deps)")
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import sph_snapshot  # noqa: E402
 
 
 def load(path):
+    """(time, the /particles datasets sorted by id) of a snapshot or checkpoint, after the
+    loader's checks (a file without write_complete, another tool's file or one without a
+    field such as velocity is refused: the last one was reported as agreeing); status 2 with
+    one message when the file cannot be used."""
     try:
-        with h5py.File(path, "r") as f:
-            group = f["particles"]
-            data = {name: group[name][()] for name in group}
-            time = float(f.attrs["time"])
-    except (OSError, KeyError) as err:
+        snap = sph_snapshot.load(path)
+    except (OSError, ValueError) as problem:
         # (status 2, as the docstring says: an unreadable file is not a difference)
-        print(f"sph_compare: cannot read '{path}': {err}", file=sys.stderr)
+        print(f"sph_compare: {problem}", file=sys.stderr)
         sys.exit(2)
-    if "id" not in data:
-        print(f"sph_compare: cannot read '{path}': it has no /particles/id", file=sys.stderr)
-        sys.exit(2)
+    # (load() gives the datasets as arrays beside the header's plain values)
+    data = {name: values for name, values in snap.items() if isinstance(values, np.ndarray)}
     order = np.argsort(data["id"], kind="stable")
-    return time, {name: values[order] for name, values in data.items()}
+    return float(snap["time"]), {name: values[order] for name, values in data.items()}
 
 
 def main(argv=None):

@@ -590,6 +590,70 @@ class TestSpacingAttribute(unittest.TestCase):
         self.assertEqual(cavity_ghia.input_and_spacing(self.plain)[1], 1.0e-4)
 
 
+class TestLoaderChecksEverywhere(unittest.TestCase):
+    """sph_error_table, sph_interface_profile and sph_compare read files through the loader's
+    checks: a file without write_complete was used silently, a directory gave h5py's errno
+    dump, another tool's file "can't locate attribute 'time'", and sph_compare said 'agree'
+    with a file that has no velocity. Each is now one message naming the file and the
+    problem, with a non-zero status."""
+
+    @classmethod
+    def setUpClass(cls):
+        cls.folder = tempfile.mkdtemp(prefix="sph_pp_checks_")
+        box_hi = (0.3e-3, 1.0e-3, 0.0)
+        text = input_text("poiseuille", 2, box_hi, 1.0e-4, 1.0e-6, 2.0e-4, 0.0)
+        pos, kind = lattice(2, box_hi, 1.0e-4)
+        vel = np.zeros_like(pos)
+        vel[kind == 0, 0] = 1e-5
+        cls.good = os.path.join(cls.folder, "good_000010.h5")
+        incomplete = os.path.join(cls.folder, "incomplete_000010.h5")
+        for path, complete in ((cls.good, True), (incomplete, False)):
+            write_snapshot(path, time=0.5, step=10, dim=2, text=text, pos=pos, kind=kind,
+                           vel=vel, complete=complete)
+        foreign = os.path.join(cls.folder, "foreign.h5")
+        with h5py.File(foreign, "w") as f:
+            f["x"] = np.arange(3.0)
+        novelocity = os.path.join(cls.folder, "novelocity.h5")
+        shutil.copy(cls.good, novelocity)
+        with h5py.File(novelocity, "r+") as f:
+            del f["particles/velocity"]
+        directory = os.path.join(cls.folder, "a_folder")
+        os.mkdir(directory)
+        cls.cases = ((incomplete, "incomplete snapshot (no write_complete marker)"),
+                     (directory, "a directory, not a snapshot file"),
+                     (foreign, "not a sphremesh snapshot or checkpoint"),
+                     (novelocity, "/particles lacks velocity"))
+
+    @classmethod
+    def tearDownClass(cls):
+        shutil.rmtree(cls.folder, ignore_errors=True)
+
+    def test_error_table(self):
+        for path, message in self.cases:
+            status, err = call_main("sph_error_table", path)
+            self.assertEqual(status, 1, path + ": " + err)
+            self.assertIn(f"{path}: {message}", err)
+        self.assertEqual(call_main("sph_error_table", self.good)[0], 0)
+
+    def test_interface_profile(self):
+        for path, message in self.cases:
+            status, err = call_main("sph_interface_profile", path)
+            self.assertEqual(status, 1, path + ": " + err)
+            self.assertIn(f"{path}: {message}", err)
+
+    def test_compare(self):
+        for path, message in self.cases:
+            for pair in ((self.good, path), (path, self.good)):
+                status, err = call_main("sph_compare", *pair)
+                self.assertEqual(status, 2, path + ": " + err)
+                self.assertIn(f"{path}: {message}", err)
+        result = run("sph_compare.py", self.good, self.cases[1][0])
+        self.assertEqual(result.returncode, 2, result.stderr)
+        self.assertNotIn("Traceback", result.stderr)
+        self.assertNotIn("agree", result.stdout)
+        self.assertEqual(result.stderr.strip().count("\n"), 0, "one line")
+
+
 class TestCouettePoiseuille(unittest.TestCase):
     """A Couette channel with a body force along the plate's motion: the reference is the sum
     of both series, as the program's (it was the Couette series alone: 37 % on a flow the
