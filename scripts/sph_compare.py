@@ -46,6 +46,9 @@ def main(argv=None):
     parser.add_argument("--ignore", nargs="*", default=["rank"],
                         help="datasets not compared (default: rank)")
     args = parser.parse_args(argv)
+    # (-1 or nan were taken, and then the same file was said to DIFFER)
+    if not (np.isfinite(args.tolerance) and args.tolerance >= 0):
+        parser.error(f"--tolerance must be a finite number >= 0 (got {args.tolerance:g})")
 
     time_a, a = load(args.a)
     time_b, b = load(args.b)

@@ -653,6 +653,14 @@ class TestLoaderChecksEverywhere(unittest.TestCase):
         self.assertNotIn("agree", result.stdout)
         self.assertEqual(result.stderr.strip().count("\n"), 0, "one line")
 
+    def test_compare_tolerance_refused(self):
+        # a negative or non-finite tolerance was taken, and the file then DIFFERed from itself
+        for bad in ("-1", "nan", "inf"):
+            status, err = call_main("sph_compare", self.good, self.good, "--tolerance", bad)
+            self.assertEqual(status, 2, bad + ": " + err)
+            self.assertIn("--tolerance must be a finite number >= 0", err)
+        self.assertEqual(call_main("sph_compare", self.good, self.good, "--tolerance", "0")[0], 0)
+
 
 class TestCouettePoiseuille(unittest.TestCase):
     """A Couette channel with a body force along the plate's motion: the reference is the sum
