@@ -322,13 +322,20 @@ def main(argv=None):
             paths = list_snapshots(item) if os.path.isdir(item) else [item]
             if not paths:
                 raise SnapshotError(f"{item}: no snapshot files (<case>_<step>.h5)")
-            for path in paths:
-                text = summary(path)
-                print(text if first else "\n" + text)
-                first = False
-        except (OSError, KeyError, ValueError) as problem:
+        except (OSError, ValueError) as problem:
             print(f"sph_snapshot: {problem}", file=sys.stderr)
             status = 1
+            continue
+        for path in paths:
+            # (a folder's first unreadable file, one cut short, hid the others' summaries)
+            try:
+                text = summary(path)
+            except (OSError, KeyError, ValueError) as problem:
+                print(f"sph_snapshot: {problem}", file=sys.stderr)
+                status = 1
+                continue
+            print(text if first else "\n" + text)
+            first = False
     return status
 
 
