@@ -92,18 +92,24 @@ def weighted(x, values, point, h):
     return float(np.sum(w * values[near]) / np.sum(w))
 
 
-def main():
+def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('output_dir')
     ap.add_argument('--case', default='cavity')
-    ap.add_argument('--fraction', type=float, default=0.2)
+    ap.add_argument('--fraction', type=float, default=0.2,
+                    help='average the snapshots of the last fraction of the run time '
+                         '(0 < f <= 1, default 0.2)')
     ap.add_argument('--min-snapshots', type=int, default=5)
     ap.add_argument('--reynolds', type=int, choices=sorted(GHIA_U), default=None,
                     help='table to compare with; default: from U L / nu of the input')
     ap.add_argument('--figure', default=None, help='write a figure of both centre lines')
     ap.add_argument('--max-rms', type=float, default=None, help='threshold, percent of U')
     ap.add_argument('--max-largest', type=float, default=None, help='threshold, percent of U')
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
+    # (2 or 0 were taken: 2 averaged from before t = 0, 0 only the last snapshot; body_drag
+    # refuses them alike)
+    if not 0.0 < args.fraction <= 1.0:
+        ap.error('--fraction must lie in (0, 1]')
 
     snaps = snapshots(args.output_dir, args.case)
     if not snaps:

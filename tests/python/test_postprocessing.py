@@ -836,6 +836,21 @@ class TestBodyDragTimeAverage(unittest.TestCase):
         self.assertIn("no Fx_mean column", str(caught.exception))
 
 
+class TestFractionRefused(unittest.TestCase):
+    """cavity_ghia.py --fraction outside (0, 1] is refused before any file is read, as by
+    body_drag.py (2 and 0 were taken)."""
+
+    def test_out_of_range(self):
+        for bad in ("2", "0", "-0.5", "nan"):
+            result = call_main("cavity_ghia", "no_such_folder", "--fraction", bad)
+            self.assertEqual(result.returncode, 2, bad + ": " + result.stderr)
+            self.assertIn("--fraction must lie in (0, 1]", result.stderr)
+        # 1 is allowed: the run's whole time (then the missing folder is the problem)
+        result = call_main("cavity_ghia", "no_such_folder", "--fraction", "1")
+        self.assertNotIn("--fraction", result.stderr)
+        self.assertIn("no_such_folder", result.stderr)
+
+
 class TestBodyDragCaseName(unittest.TestCase):
     """body_drag.case_of: each run directory's case from its one forces file, so runs of
     different inputs compare in one call."""
