@@ -109,6 +109,15 @@ def main(argv=None):
             text = f"{args.snapshot}: {text}"
         print(f"sph_interface_profile: {text}", file=sys.stderr)
         return 1
+    # the uniform runs' snapshots read now, each with the loader's checks (one missing was
+    # reported as a problem of the figure, "the figure 'i2.png': ... nonexist.h5")
+    uniform = []
+    for path in args.uniform:
+        try:
+            uniform.append(load(path))
+        except (OSError, KeyError, ValueError) as problem:
+            print(f"sph_interface_profile: {problem}", file=sys.stderr)
+            return 1
     rho0 = float(f90nml.reads(data["text"])["fluid"]["rho0"])
     y_lo, y_hi = par["y0"], par["y0"] + par["width"]
     faces = args.interfaces or region_interfaces(data["text"], y_lo, y_hi)
@@ -138,7 +147,7 @@ def main(argv=None):
         print(f"{y0:16.6g} {rb:12.6f} {ra:12.6f} {jump:14.5f} {ub:12.5e} {ua:12.5e}")
     if args.figure:
         try:
-            draw(args, data, par, faces, width)
+            draw(args, data, uniform, par, faces, width)
         except (OSError, KeyError, ValueError) as problem:
             print(f"sph_interface_profile: the figure '{args.figure}': {problem}",
                   file=sys.stderr)
@@ -154,7 +163,7 @@ def main(argv=None):
     return 0
 
 
-def draw(args, data, par, faces, width):
+def draw(args, data, uniform, par, faces, width):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -172,7 +181,7 @@ def draw(args, data, par, faces, width):
                       label=f"level {level}")
     edges = np.arange(par["y0"], par["y0"] + par["width"] + width / 2, width)
     centres = 0.5 * (edges[1:] + edges[:-1])
-    for other in [data] + [load(path) for path in args.uniform]:
+    for other in [data] + uniform:
         sel = other["kind"] == 0
         sums = np.histogram(other["y"][sel], edges, weights=other["rho"][sel])[0]
         counts = np.histogram(other["y"][sel], edges)[0]

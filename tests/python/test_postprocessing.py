@@ -204,7 +204,17 @@ def is_png(path, min_bytes=5000):
         return f.read(8) == b"\x89PNG\r\n\x1a\n"
 
 
-class PostProcessingTestCase(unittest.TestCase):
+class ScriptTestCase(unittest.TestCase):
+
+    def assertCleanFailure(self, result, *fragments):
+        """Exit 1, a message naming the problem, no traceback."""
+        self.assertEqual(result.returncode, 1, result.stdout + result.stderr)
+        self.assertNotIn("Traceback", result.stderr)
+        for fragment in fragments:
+            self.assertIn(fragment, result.stderr)
+
+
+class PostProcessingTestCase(ScriptTestCase):
     case, dim = "poiseuille", 2
 
     @classmethod
@@ -215,13 +225,6 @@ class PostProcessingTestCase(unittest.TestCase):
     @classmethod
     def tearDownClass(cls):
         shutil.rmtree(cls.folder, ignore_errors=True)
-
-    def assertCleanFailure(self, result, *fragments):
-        """Exit 1, a message naming the problem, no traceback."""
-        self.assertEqual(result.returncode, 1, result.stdout + result.stderr)
-        self.assertNotIn("Traceback", result.stderr)
-        for fragment in fragments:
-            self.assertIn(fragment, result.stderr)
 
 
 class TestSnapshot(PostProcessingTestCase):
@@ -589,7 +592,7 @@ class TestSpacingAttribute(unittest.TestCase):
         self.assertEqual(cavity_ghia.input_and_spacing(self.plain)[1], 1.0e-4)
 
 
-class TestLoaderChecksEverywhere(unittest.TestCase):
+class TestLoaderChecksEverywhere(ScriptTestCase):
     """sph_error_table, sph_interface_profile and sph_compare read files through the loader's
     checks: a file without write_complete was used silently, a directory gave h5py's errno
     dump, another tool's file "can't locate attribute 'time'", and sph_compare said 'agree'
@@ -639,6 +642,17 @@ class TestLoaderChecksEverywhere(unittest.TestCase):
             result = call_main("sph_interface_profile", path)
             self.assertEqual(result.returncode, 1, path + ": " + result.stderr)
             self.assertIn(f"{path}: {message}", result.stderr)
+
+    def test_interface_profile_names_a_missing_uniform_file(self):
+        # a uniform run's file that does not exist was reported as a problem of the figure
+        # ("the figure 'i2.png': ... nonexist.h5"), after the table
+        missing = os.path.join(self.folder, "nonexist.h5")
+        figure = os.path.join(self.folder, "i2.png")
+        result = call_main("sph_interface_profile", self.good, missing, "--figure", figure,
+                           "--interfaces", "0.5e-3")
+        self.assertCleanFailure(result, f"{missing}: no such file")
+        self.assertNotIn("figure", result.stderr)
+        self.assertFalse(os.path.exists(figure))
 
     def test_compare(self):
         for path, message in self.cases:
