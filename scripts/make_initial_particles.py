@@ -154,6 +154,10 @@ def main(argv=None):
     parser.add_argument("--force", action="store_true",
                         help="replace OUTPUT when it exists")
     args = parser.parse_args(argv)
+    # (with --force it ended in an IsADirectoryError traceback; --force replaces files only)
+    if os.path.isdir(args.output):
+        sys.exit(f"make_initial_particles: '{args.output}' is a directory; give the file to "
+                 f"write, e.g. {os.path.join(args.output, 'particles.h5')}")
     # (a user's file is never replaced without --force: -o INPUT.nml overwrote the input)
     if os.path.lexists(args.output) and not args.force:
         sys.exit(f"make_initial_particles: '{args.output}' exists; give another name, or "
@@ -164,13 +168,17 @@ def main(argv=None):
                  "exist")
     case = read_case(args.input)
     position, kind, ids = make_particles(case)
-    with h5py.File(args.output, "w") as f:
-        f.attrs["dimension"] = np.int32(case["dimension"])
-        g = f.create_group("particles")
-        g["position"] = position
-        g["kind"] = kind
-        g["id"] = ids
-        g["density"] = np.full(len(ids), case["rho0"])
+    try:
+        with h5py.File(args.output, "w") as f:
+            f.attrs["dimension"] = np.int32(case["dimension"])
+            g = f.create_group("particles")
+            g["position"] = position
+            g["kind"] = kind
+            g["id"] = ids
+            g["density"] = np.full(len(ids), case["rho0"])
+    except OSError as problem:
+        # (a folder without write permission, a full disk: a traceback before)
+        sys.exit(f"make_initial_particles: cannot write '{args.output}': {problem}")
     print(f"{args.output}: {len(ids)} particles ({np.count_nonzero(kind == 0)} fluid, "
           f"{np.count_nonzero(kind == 1)} wall), dimension {case['dimension']}")
     return 0

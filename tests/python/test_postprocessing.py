@@ -798,6 +798,15 @@ class TestMakeInitialParticles(unittest.TestCase):
         self.assertIn("does not exist", result.stderr)
         self.assertNotIn("Traceback", result.stderr)
 
+    def test_output_directory_refused(self):
+        # -o a folder with --force ended in an IsADirectoryError traceback
+        for extra in ((), ("--force",)):
+            result = call_main("make_initial_particles", self.input, "-o", self.folder, *extra)
+            self.assertEqual(result.returncode, 1, result.stdout + result.stderr)
+            self.assertIn("is a directory; give the file to write", result.stderr)
+            self.assertNotIn("Traceback", result.stderr)
+        self.assertTrue(os.path.isdir(self.folder))
+
     def test_elements_from_an_index(self):
         indexed = os.path.join(self.folder, "indexed.nml")
         with open(indexed, "w") as f:
