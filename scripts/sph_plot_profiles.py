@@ -133,9 +133,13 @@ def main(argv=None):
         return 1
     series.sort(key=lambda s: s[0])
     par, case = series[-1][3], series[-1][4]
-    if len({(round(s[3]["width"], 15), s[4], round(s[3]["dx"], 15)) for s in series}) > 1:
+    if len({(round(s[3]["width"], 15), s[4]) for s in series}) > 1:
         print("sph_plot_profiles: warning: the snapshots come from different set-ups; "
               "the title describes the last one", file=sys.stderr)
+    elif len({round(s[3]["dx"], 15) for s in series}) > 1:
+        # (a run remeshed on its way, whose files carry their own spacing: one set-up)
+        print("sph_plot_profiles: note: the snapshots' spacings differ (a remeshed run?); "
+              "the title gives the last one's", file=sys.stderr)
 
     umax = max(np.abs(s[2]["velocity"][s[2]["kind"] == 0, s[3]["flow"]]).max() for s in series)
     steady_max = np.abs(exact_profile(par, case, np.linspace(0, par["width"], 201), np.inf)).max()

@@ -591,6 +591,16 @@ class TestSpacingAttribute(unittest.TestCase):
         self.assertEqual(cavity_ghia.input_and_spacing(self.refined)[1], 0.5e-4)
         self.assertEqual(cavity_ghia.input_and_spacing(self.plain)[1], 1.0e-4)
 
+    def test_profile_plot_of_a_remeshed_run(self):
+        # one set-up at two spacings: a note, not "different set-ups"; the title's dx/L the
+        # last file's
+        out = os.path.join(self.folder, "remeshed.png")
+        result = call_main("sph_plot_profiles", self.plain, self.refined, "--average",
+                           "--dpi", "20", "-o", out)
+        self.assertEqual(result.returncode, 0, result.stderr)
+        self.assertIn("spacings differ", result.stderr)
+        self.assertNotIn("different set-ups", result.stderr)
+
 
 class TestLoaderChecksEverywhere(ScriptTestCase):
     """sph_error_table, sph_interface_profile and sph_compare read files through the loader's
