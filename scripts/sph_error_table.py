@@ -15,7 +15,10 @@ component counts; virtual particles, kind 2, are left out). The case comes from 
 resolution level (a multi-resolution run), --band to those with band[0] <= y < band[1]
 (the same region of a uniform run, for comparison), --outside to the others; y is the
 coordinate across the channel (the axis whose faces are walls), the flow runs along the body
-force or the moving wall, as the program takes them.
+force or the moving wall, as the program takes them. A channel without that drive (--case
+poiseuille without a body force) has a fluid at rest for reference and is refused. The dx/L
+column is the file's spacing (its attribute dx, else the input's &domain dx: the input keeps
+the spacing a remeshed run began with) over the channel's width.
 """
 import argparse
 import os
@@ -39,7 +42,8 @@ def channel_parameters(text, case=None):
     the wall-normal axis (walls on both of its faces), the flow axis (along the body force,
     or the moving wall's velocity), and the distance from the resting wall, y = sign *
     (x[axis] - y0), with the moving wall (Couette) at y = width. Also the viscosity, the
-    drive along the flow (body force, moving wall's speed) and dx. A set-up that is no
+    drive along the flow (body force, moving wall's speed) and the input's dx (a file's own
+    spacing is sph_snapshot.spacing's, which snapshot_error puts here). A set-up that is no
     such channel gets axis None (its case has no analytic solution here). case overrides
     the input's analytic key (--case), which decides the drive: a moving wall's velocity
     (Couette) or the body force."""
