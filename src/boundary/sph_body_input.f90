@@ -71,6 +71,14 @@ contains
             doc='velocity of the body''s wall particles (they keep their place): 0, ' // &
             'or along a cylinder''s axis')
         if (len_trim(body%name) == 0) body%name = 'body ' // itoa(grp%instance)
+        ! the name is a column of the forces CSV and a line's label in the log (fz44: a comma
+        ! shifted every column after it; 'wall ylo' gave two rows no reader could tell apart)
+        if (scan(body%name, ',"' // achar(9) // achar(13) // achar(10)) > 0) &
+            call grp%error('name', "'" // trim(body%name) // "' holds a comma, a double " // &
+            "quote or a control character: the forces file (CSV) names the body with it")
+        if (any(trim(body%name) == ['wall xlo', 'wall xhi', 'wall ylo', 'wall yhi', &
+                'wall zlo', 'wall zhi'])) call grp%error('name', "'" // trim(body%name) // &
+            "' is the name of a box wall in the logs and the forces file: choose another")
 
         dim = min(max(dom%dimension, 2), 3)
         select case (trim(body%shape))
