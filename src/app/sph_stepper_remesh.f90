@@ -302,9 +302,23 @@ contains
             problem = trim(text)
             return
         end do
+        ! the input's rule for a round body (sph_body_input): a radius of at least half the
+        ! spacing (a coarsening left r = 0.36 and 0.25 new spacings and ran on, where a
+        ! fresh start at that spacing is refused: fz44)
+        if (.not. allocated(cfg%bodies)) return
+        do body = 1, size(cfg%bodies)
+            if (all(trim(cfg%bodies(body)%shape) /= [character(len=8) :: 'circle', 'sphere', &
+                'cylinder'])) cycle
+            if (cfg%bodies(body)%radius >= 0.5_wp * dx_new) cycle
+            write(text, '(a,i0,a,es9.3,a,es9.3,a)') '&body ', body, " ('" // &
+                trim(cfg%bodies(body)%name) // "') radius ", cfg%bodies(body)%radius, &
+                ' m would be below half the new spacing (', dx_new, ' m), as no input allows'
+            problem = trim(text)
+            return
+        end do
         ! Morris walls laid again at the new spacing: a body must still hold a site (a circle
         ! of 0.6 dx holds one at dx but may hold none at 2 dx: the run went on without it)
-        if (phys%walls /= WALLS_MORRIS .or. .not. allocated(cfg%bodies)) return
+        if (phys%walls /= WALLS_MORRIS) return
         solids = solids_from_config(after)
         do body = 1, size(cfg%bodies)
             if (body_holds_site(after, solids, body, dx_new)) cycle

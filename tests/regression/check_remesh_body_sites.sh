@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Regression: an in-run coarsening at which a body would hold no site of the coarse lattice
-# is skipped with a warning naming the body, and the body keeps its wall particles; a body
-# inside another, which takes its sites, is accepted.
+# is skipped with a warning naming the body, and the body keeps its wall particles; so is one
+# that would leave a radius below half the new spacing; a body inside another, which takes
+# its sites, is accepted.
 # usage: check_remesh_body_sites.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM INPUT WORKDIR PYTHON
 #        NESTED_INPUT
 set -u
@@ -22,5 +23,13 @@ n_body = int(((kind == 1) & (solid == 3)).sum())
 print(f"body 1 holds {n_body} wall particles")
 sys.exit(0 if n_body > 0 else 1)
 PY
+# a radius that the coarser spacing's input would refuse (below half of it: 0.75 dx coarsened
+# to 0.375 new spacings ran on, fz44) is skipped too, naming the rule
+sed -e 's/^ *radius = .*/    radius = 0.75e-4/' -e "s#^ *output_dir = .*#    output_dir = 'small'#" \
+    "$input" > small.nml
+"$mpiexec" "$np_flag" "$np" $extra "$program" small.nml > small.log 2>&1 || \
+    fail "the run with the smaller body failed:" small.log
+grep -q "remesh: not remeshed: &body 1 ('body 1') radius 7.500E-05 m would be below half" \
+    small.log || fail "no warning naming the radius:" small.log
 "$mpiexec" "$np_flag" "$np" $extra "$program" "$nested" --check > nested.log 2>&1 || \
     fail "a body inside another was refused:" nested.log
