@@ -200,31 +200,34 @@ contains
         type(simulation_t), intent(inout) :: sim
         type(mpi_env_t), intent(in) :: env
         real(wp) :: wall_now
+        logical :: row_follows
         sched%finished = run_finished(sched, sim%time, sim%step)
         if (.not. sched%finished) call check_stop_request(sched, env)
         if (output_due(sched, sim%time)) then
             call simulation_write_snapshot(sim, env)
             call advance_output_time(sched, sim%time)
         end if
+        ! (schedule_after_step's log line, with the forces row, comes after the checkpoint)
+        row_follows = mod(sim%step, sched%log_every) == 0 .or. sched%finished
         call wall_clock(wall_now)
         if (sched%finished) then
-            call simulation_write_checkpoint(sim, env)
+            call simulation_write_checkpoint(sim, env, row_follows)
         else if (checkpoint_due_by_steps(sched, sim%step, sched%last_synchronised)) then
-            call simulation_write_checkpoint(sim, env)
+            call simulation_write_checkpoint(sim, env, row_follows)
             sched%wall_checkpoint = wall_now
         end if
         ! wall-clock interval: rank 0's clock decides for everybody
         if (.not. sched%finished .and. sched%checkpoint_wall > 0.0_wp) then
             if (checkpoint_due_by_wall(sched, global_max(env, &
                 merge(wall_now - sched%wall_checkpoint, 0.0_wp, env%rank == 0)))) then
-                call simulation_write_checkpoint(sim, env)
+                call simulation_write_checkpoint(sim, env, row_follows)
                 sched%wall_checkpoint = wall_now
             end if
         end if
     end subroutine after_synchronised_step
 
-    !> A scheduler's SIGTERM or SIGUSR1 (or a Ctrl-C's SIGINT) on any rank, or the wall-time limit on rank 0's clock:
-    !> the run ends after this step with a checkpoint (collective).
+    !> A scheduler's SIGTERM or SIGUSR1 (or a Ctrl-C's SIGINT) on any rank, or the wall-time
+    !> limit on rank 0's clock: the run ends after this step with a checkpoint (collective).
     subroutine check_stop_request(sched, env)
         type(schedule_t), intent(inout) :: sched
         type(mpi_env_t), intent(in) :: env

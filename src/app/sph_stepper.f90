@@ -291,9 +291,12 @@ module sph_stepper
     interface
         !> Write a checkpoint of the current state and keep only the newest checkpoints_kept of
         !> those this run wrote (collective).
-        module subroutine simulation_write_checkpoint(sim, env)
+        module subroutine simulation_write_checkpoint(sim, env, forces_row_follows)
             type(simulation_t), intent(inout) :: sim
             type(mpi_env_t), intent(in) :: env
+            !> the forces file gets a row at this step after the checkpoint (a log line):
+            !> the checkpoint's running mean is then empty, as the continued run finds it
+            logical, intent(in), optional :: forces_row_follows
         end subroutine simulation_write_checkpoint
 
         !> What a checkpoint holds of the levels' balance of a multi-resolution run (the
@@ -314,9 +317,9 @@ module sph_stepper
 
         !> The forces on the solids as rows of <output_dir>/<case>_forces.csv: time, step, body,
         !> Fx, Fy, Fz, then the pressure and viscous parts (N, per unit depth in 2D), then the
-        !> total force's mean over the steps since the previous row (Fx_mean, ...; the
-        !> instantaneous force at a run's or a restart's first row). Collective; rank 0
-        !> writes. `fresh` starts the file (a new run); otherwise rows are appended.
+        !> total force's mean over the steps since the previous row (Fx_mean, ...; since
+        !> t = 0 at a run's first row; a restart goes on with its checkpoint's sums).
+        !> Collective; rank 0 writes. `fresh` starts the file (a new run); otherwise rows are appended.
         module subroutine simulation_write_forces(sim, env, fresh)
             type(simulation_t), intent(inout) :: sim
             type(mpi_env_t), intent(in) :: env

@@ -182,7 +182,7 @@ contains
         logical :: same_layout, is_directory
         character(len=256) :: line
         real(wp) :: stored_dx
-        real(wp), allocatable :: balance(:)
+        real(wp), allocatable :: balance(:), force_sums(:)
         integer :: n
         character(len=:), allocatable :: what, walls_changed
         !> the input the run goes on with: cfg, at the checkpoint's spacing when a remesh in
@@ -213,8 +213,16 @@ contains
         call take_remeshed_spacing(env, path, what, given)
         call setup_common(sim, env, given)
         call read_checkpoint(env, path, sim%p, sim%domain, sim%time, sim%step, stored_input, &
-            index_text, same_layout, stat, errmsg, stored_dx, balance)
+            index_text, same_layout, stat, errmsg, stored_dx, balance, force_sums)
         if (stat /= 0) call fatal_collective(what, errmsg)
+        ! the forces file's running mean since its last row, as the checkpointed run had it
+        ! (rank 0 holds the sums over the ranks; none in checkpoints written before it was
+        ! kept, or for other solids: the mean then starts at the restart)
+        if (size(force_sums) == 1 + size(sim%force_integral)) then
+            sim%force_window = force_sums(1)
+            if (env%rank == 0) sim%force_integral = reshape(force_sums(2:), &
+                shape(sim%force_integral))
+        end if
         ! a multi-resolution state continued by an input without regions would run its fine
         ! and virtual particles as if they were of the one level (a two-level channel did,
         ! without a word)

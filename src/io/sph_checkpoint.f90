@@ -44,7 +44,8 @@ contains
     !> restart checks, see read_checkpoint). stat 2: an owned particle of a kind no
     !> checkpoint holds (an internal error); other failures (the file) stat 1.
     subroutine write_checkpoint(env, p, domain, path, time, step, dimension, code_version, &
-                                input_text, snapshot_index, stat, errmsg, dx, balance)
+                                input_text, snapshot_index, stat, errmsg, dx, balance, &
+                                force_sums)
         type(mpi_env_t), intent(in) :: env
         type(particles_t), intent(inout) :: p
         type(domain_t), intent(in) :: domain
@@ -59,6 +60,10 @@ contains
         !> each level's last virtual push, the zones' drift), stored as
         !> 'checkpoint/level_balance'
         real(wp), intent(in), optional, contiguous :: balance(:)
+        !> the forces file's mean since its last row (sph_stepper: the window, then the force
+        !> integrals over it), stored as 'checkpoint/force_sums': a restart's next row then
+        !> averages the steps the checkpointed run had taken since that row too
+        real(wp), intent(in), optional, contiguous :: force_sums(:)
         type(h5_file_t) :: file
         integer :: n, n_tree, k
         integer(i8) :: my_rows(1), offset, total
@@ -104,6 +109,8 @@ contains
         call h5_write_rows(env, file, 'checkpoint/orb_rank', tree, n_tree)
         if (present(balance)) call h5_write_rows(env, file, 'checkpoint/level_balance', &
             balance, merge(size(balance), 0, env%rank == 0))
+        if (present(force_sums)) call h5_write_rows(env, file, 'checkpoint/force_sums', &
+            force_sums, merge(size(force_sums), 0, env%rank == 0))
         call snapshot_end(env, path, file, stat, errmsg)
     end subroutine write_checkpoint
 
@@ -112,7 +119,7 @@ contains
     !> otherwise the caller must partition and migrate. Refuses incomplete or foreign files.
     !> dx: the particle spacing stored by write_checkpoint, 0 when the file has none.
     subroutine read_checkpoint(env, path, p, domain, time, step, input_text, snapshot_index, &
-                               same_layout, stat, errmsg, dx, balance)
+                               same_layout, stat, errmsg, dx, balance, force_sums)
         type(mpi_env_t), intent(in) :: env
         character(len=*), intent(in) :: path
         type(particles_t), intent(inout) :: p
@@ -126,6 +133,8 @@ contains
         real(wp), intent(out), optional :: dx
         !> what write_checkpoint stored as `balance`; empty when the file holds none
         real(wp), allocatable, intent(out), optional :: balance(:)
+        !> what write_checkpoint stored as `force_sums`; empty when the file holds none
+        real(wp), allocatable, intent(out), optional :: force_sums(:)
         type(h5_file_t) :: file
         integer :: dimension, n, n_tree
         integer(i4) :: version, nranks_file
@@ -169,6 +178,11 @@ contains
             n = int(max(h5_dataset_rows(file, 'checkpoint/level_balance'), 0_i8))
             allocate(balance(n))
             if (n > 0) call h5_read_rows(file, 'checkpoint/level_balance', balance, n, 0_i8)
+        end if
+        if (present(force_sums)) then
+            n = int(max(h5_dataset_rows(file, 'checkpoint/force_sums'), 0_i8))
+            allocate(force_sums(n))
+            if (n > 0) call h5_read_rows(file, 'checkpoint/force_sums', force_sums, n, 0_i8)
         end if
         call h5_read_attribute(file, 'nranks', nranks_file, stat)
         same_layout = nranks_file == env%nranks .and. &
