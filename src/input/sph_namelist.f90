@@ -29,6 +29,7 @@ module sph_namelist
         character(len=:), allocatable :: text   !< token; strings without their quotes
         logical :: quoted = .false.
         logical :: null = .false.                !< an empty entry: leaves the element as it is
+        integer :: line = 0                      !< where the value is (its key may be above)
     end type nml_value_t
 
     !> One assignment `key(subscript) = values`.
@@ -55,6 +56,10 @@ module sph_namelist
         !> starting nl
         character(len=:), allocatable :: notes
         integer :: n_errors = 0
+        !> the unknown keys' errors of errors (group_finish), apart: config_parse reports
+        !> them alone, since a misspelt key leaves its default and what follows misleads
+        character(len=:), allocatable :: unknown
+        integer :: n_unknown = 0
         integer :: instance = 0                  !< of a repeated group (1, 2, ...); 0: single
     contains
         procedure :: get_real, get_int, get_logical, get_string
@@ -236,12 +241,17 @@ contains
         do k = 1, size(self%keys)
             names(k) = self%keys(k)%key
         end do
+        if (.not. allocated(self%unknown)) self%unknown = ''
+        if (.not. allocated(self%errors)) self%errors = ''
         do i = 1, size(self%items)
             if (self%items(i)%used) cycle
             hint = suggestion(self%items(i)%key, names)
+            k = len(self%errors)
             call self%error(self%items(i)%key, 'unknown key (line ' // &
                 itoa(self%items(i)%line) // ')' // hint // &
                 ' Allowed keys in &' // self%name // ': ' // join(names, ', ', ''))
+            self%unknown = self%unknown // self%errors(k + 1:)
+            self%n_unknown = self%n_unknown + 1
         end do
     end subroutine group_finish
 
@@ -349,10 +359,11 @@ contains
             if (.not. in_range(var(k))) then
                 if (is_scalar) then
                     call self%error(key, real_text(var(k)) // ' is out of range: must be ' // &
-                        range // unit_suffix(unit))
+                        range // unit_suffix(unit) // given_at(set_line(k)))
                 else
                     call self%error(key // '(' // itoa(k) // ')', real_text(var(k)) // &
-                        ' is out of range: must be ' // range // unit_suffix(unit))
+                        ' is out of range: must be ' // range // unit_suffix(unit) // &
+                        given_at(set_line(k)))
                 end if
             end if
         end do
@@ -409,14 +420,16 @@ contains
         i = self%find(key)
         if (i /= 0) then
             if (len(self%items(i)%subscript) > 0) then
-                call self%error(key, 'a list is given whole, without a subscript')
+                call self%error(key, 'a list is given whole, without a subscript' // &
+                    line_text(self%items(i)))
             else if (size(self%items(i)%values) > max_count) then
-                call self%error(key, 'at most ' // itoa(max_count) // ' entries')
+                call self%error(key, 'at most ' // itoa(max_count) // ' entries, got ' // &
+                    itoa(size(self%items(i)%values)) // line_text(self%items(i)))
             else if (size(self%items(i)%values) == 1 .and. all(self%items(i)%values%null)) then
                 ! `key =` (or `key = ,`): none, as the default
                 continue
             else if (any(self%items(i)%values%null)) then
-                call self%error(key, 'a list has no empty entries')
+                call self%error(key, 'a list has no empty entries' // line_text(self%items(i)))
             else
                 n = size(self%items(i)%values)
                 call self%convert_reals(self%items(i), buf(1:n), [n])
@@ -426,7 +439,8 @@ contains
         do k = 1, n
             if (present(min)) then
                 if (.not. var(k) >= min) call self%error(key, real_text(var(k)) // &
-                    ' is out of range: must be ' // range_text(min, null(), null(), null()))
+                    ' is out of range: must be ' // range_text(min, null(), null(), null()) &
+                    // value_line_text(self%items(i), k))
             end if
         end do
         if (n == 0) then
@@ -443,7 +457,7 @@ contains
         integer, intent(in) :: default
         integer, intent(in), optional :: min, max
         character(len=*), intent(in), optional :: unit, doc
-        character(len=:), allocatable :: range
+        character(len=:), allocatable :: range, at
         integer :: i, ios
         range = ''
         if (present(min)) range = '>= ' // itoa(min)
@@ -461,25 +475,27 @@ contains
                         continue
                     else if (v%quoted) then
                         call self%error(key, "'" // v%text // "' is not an integer" // &
-                            line_text(self%items(i)))
+                            value_line_text(self%items(i), 1))
                     else
                         read(v%text, *, iostat=ios) var
                         if (ios /= 0) then
                             call self%error(key, "'" // v%text // "' is not an integer" // &
-                                line_text(self%items(i)))
+                                value_line_text(self%items(i), 1))
                             var = default
                         end if
                     end if
                 end associate
             end if
         end if
+        at = ''
+        if (i /= 0) at = value_line_text(self%items(i), 1)
         if (present(min)) then
             if (var < min) call self%error(key, itoa(var) // ' is out of range: must be ' // &
-                range // unit_suffix(unit))
+                range // unit_suffix(unit) // at)
         end if
         if (present(max)) then
             if (var > max) call self%error(key, itoa(var) // ' is out of range: must be ' // &
-                range // unit_suffix(unit))
+                range // unit_suffix(unit) // at)
         end if
         call append_resolved(self, key, itoa(var))
     end subroutine get_int
@@ -501,13 +517,13 @@ contains
                         continue
                     else if (v%quoted) then
                         call self%error(key, "'" // v%text // "' is not a logical" // &
-                            line_text(self%items(i)))
+                            value_line_text(self%items(i), 1))
                     else
                         read(v%text, *, iostat=ios) var
                         if (ios /= 0) then
                             call self%error(key, "'" // v%text // &
                                 "' is not a logical (.true. or .false.)" // &
-                                line_text(self%items(i)))
+                                value_line_text(self%items(i), 1))
                             var = default
                         end if
                     end if
@@ -575,18 +591,18 @@ contains
                     ! the value started a comment and a '/' ended the group
                     if (.not. v%quoted) then
                         call self%error(shown, v%text // ' is not a quoted string (write ' // &
-                            quote(v%text) // ')' // line_text(self%items(i)))
+                            quote(v%text) // ')' // value_line_text(self%items(i), k))
                         cycle
                     end if
                     if (len(v%text) > len(var)) then
                         call self%error(shown, "'" // v%text // "' is longer than " // &
-                            itoa(len(var)) // ' characters' // line_text(self%items(i)))
+                            itoa(len(var)) // ' characters' // value_line_text(self%items(i), k))
                         cycle
                     end if
                     ! (they would reach the log and every output file's stored input raw)
                     if (has_control(v%text)) then
                         call self%error(shown, "'" // v%text // "' holds a control " // &
-                            'character' // line_text(self%items(i)))
+                            'character' // value_line_text(self%items(i), k))
                         cycle
                     end if
                     var(order(k)) = v%text
@@ -599,7 +615,9 @@ contains
                 if (any(var(k) == choices)) cycle
                 shown = key
                 if (.not. is_scalar) shown = key // '(' // itoa(k) // ')'
-                call self%error(shown, "'" // trim(var(k)) // "' is not one of " // range)
+                ! (with the value's line and the nearest choice, as an unknown key has)
+                call self%error(shown, "'" // trim(var(k)) // "' is not one of " // range // &
+                    given_at(set_line(k)) // suggestion(trim(var(k)), choices))
             end do
         end if
         shown = ''
@@ -628,7 +646,7 @@ contains
         i = self%find(key)
         if (i == 0) return
         if (len(self%items(i)%subscript) > 0) then
-            call self%error(key, 'a scalar takes no subscript')
+            call self%error(key, 'a scalar takes no subscript' // line_text(self%items(i)))
             return
         end if
         items = [i]
@@ -639,7 +657,8 @@ contains
         integer, intent(in) :: i
         single_value = .false.
         if (len(self%items(i)%subscript) > 0) then
-            call self%error(self%items(i)%key, 'a scalar takes no subscript')
+            call self%error(self%items(i)%key, 'a scalar takes no subscript' // &
+                line_text(self%items(i)))
         else if (size(self%items(i)%values) /= 1) then
             call self%error(self%items(i)%key, 'expects one value, got ' // &
                 itoa(size(self%items(i)%values)) // line_text(self%items(i)) // &
@@ -666,12 +685,15 @@ contains
             if (set_line(element) == 0) cycle
             call self%error(element_label(item%key, element, shp), &
                 'given more than once (lines ' // &
-                itoa(set_line(element)) // ' and ' // itoa(item%line) // ')')
+                itoa(set_line(element)) // ' and ' // itoa(value_line(item, k)) // ')')
             claimed = .false.
             return
         end do
+        ! (the value's own line: a range or choice message names it)
         do k = 1, min(size(order), size(item%values))
-            if (.not. item%values(k)%null) set_line(order(k)) = item%line
+            if (item%values(k)%null) cycle
+            set_line(order(k)) = item%line
+            if (item%values(k)%line > 0) set_line(order(k)) = item%values(k)%line
         end do
     end function claim_elements
 
@@ -702,6 +724,33 @@ contains
         character(len=:), allocatable :: text
         text = ' (line ' // itoa(item%line) // ')'
     end function line_text
+
+    !> ` (line N)`: where value k of an assignment is (a list continued over lines, a key
+    !> whose '=' or value starts a later line: the key's line was named, fz42, fz48).
+    function value_line_text(item, k) result(text)
+        type(nml_item_t), intent(in) :: item
+        integer, intent(in) :: k
+        character(len=:), allocatable :: text
+        text = ' (line ' // itoa(value_line(item, k)) // ')'
+    end function value_line_text
+
+    !> The line of value k of an assignment (its key's when not known).
+    integer function value_line(item, k)
+        type(nml_item_t), intent(in) :: item
+        integer, intent(in) :: k
+        value_line = item%line
+        if (k >= 1 .and. k <= size(item%values)) then
+            if (item%values(k)%line > 0) value_line = item%values(k)%line
+        end if
+    end function value_line
+
+    !> ` (line N)` for a line known (> 0), else nothing (a default is on no line).
+    function given_at(line) result(text)
+        integer, intent(in) :: line
+        character(len=:), allocatable :: text
+        text = ''
+        if (line > 0) text = ' (line ' // itoa(line) // ')'
+    end function given_at
 
     !> `key(i,j)` for element (column-major index) of an array of shape shp; key alone for
     !> a scalar.
@@ -750,7 +799,7 @@ contains
             associate (v => item%values(k))
                 if (v%null) cycle
                 shown = element_label(item%key, order(k), shp)
-                at_line = line_text(item)
+                at_line = value_line_text(item, k)
                 if (v%quoted) then
                     call self%error(shown, "'" // v%text // "' is not a real number" // at_line)
                     cycle
