@@ -76,12 +76,54 @@ contains
             return
         end if
         inquire(unit=unit, size=file_size)
-        allocate(character(len=max(file_size, 0)) :: text)
-        if (file_size > 0) read(unit, iostat=stat, iomsg=iomsg) text
+        if (file_size > 0) then
+            allocate(character(len=file_size) :: text)
+            read(unit, iostat=stat, iomsg=iomsg) text
+        else
+            ! a pipe or another file of no size to ask (sphremesh --check /dev/stdin, a
+            ! process substitution) read as empty: read to its end (fz48)
+            call read_to_end(unit, text, stat, iomsg)
+        end if
         close(unit)
         if (stat /= 0) errmsg = "cannot read input file '" // trim(filename) // "': " // &
             trim(iomsg)
     end subroutine config_read_file
+
+    !> The bytes of a stream unit up to its end (one at a time: a read of a whole buffer
+    !> that meets the end says not how much it read); more than MAX_BYTES is refused.
+    subroutine read_to_end(unit, text, stat, iomsg)
+        integer, intent(in) :: unit
+        character(len=:), allocatable, intent(out) :: text
+        integer, intent(out) :: stat
+        character(len=*), intent(inout) :: iomsg
+        integer, parameter :: MAX_BYTES = 2**28
+        character(len=:), allocatable :: grown
+        character :: byte
+        integer :: n
+        allocate(character(len=4096) :: text)
+        n = 0
+        do
+            read(unit, iostat=stat, iomsg=iomsg) byte
+            if (is_iostat_end(stat)) then
+                stat = 0
+                exit
+            end if
+            if (stat /= 0) return
+            if (n == MAX_BYTES) then
+                stat = 1
+                iomsg = 'more than 256 MB of input'
+                return
+            end if
+            if (n == len(text)) then
+                allocate(character(len=2 * len(text)) :: grown)
+                grown(1:n) = text(1:n)
+                call move_alloc(grown, text)
+            end if
+            n = n + 1
+            text(n:n) = byte
+        end do
+        text = text(1:n)
+    end subroutine read_to_end
 
     !> Parse, read every group through its owner and check everything. On error stat is the
     !> number of problems and errmsg lists each, naming file, group and key.

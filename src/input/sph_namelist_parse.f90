@@ -13,6 +13,9 @@ contains
         integer :: kind_tok, tok_line, open_line
         logical :: quoted, in_group, expect_value, after_value, repeat_quoted
         integer :: key_line
+        ! the line of the last group's end and whether an unquoted value came right before it
+        integer :: end_line
+        logical :: end_after_unquoted
         type(nml_group_t) :: grp
         ! the pending key's values, values(1:n_values) (grown by doubling: appended one by
         ! one, 20000 values took 20 s)
@@ -34,6 +37,8 @@ contains
         expect_value = .false.
         allocate(values(16))
         n_values = 0
+        end_line = 0
+        end_after_unquoted = .false.
         n_groups = 0
         open_line = 0
         ! a UTF-8 byte-order mark, as some editors write it, is not part of the text; UTF-16
@@ -64,10 +69,10 @@ contains
                     open_line = tok_line
                 case (t_end)
                     call fail(tok_line, "a group's end ('/' or &end) outside a group (one " // &
-                        "closed twice, or text after a group's end)")
+                        "closed twice, or text after a group's end)" // slash_hint())
                     return
                 case default
-                    call fail(tok_line, "text outside a group: '" // tok // "'")
+                    call fail(tok_line, "text outside a group: '" // tok // "'" // slash_hint())
                     return
                 end select
                 cycle
@@ -82,6 +87,12 @@ contains
                     ' (opened on line ' // itoa(open_line) // '), which is not closed by /')
                 return
             case (t_end)
+                ! (an unquoted value right before it: 'output_dir = output/run1' ends the
+                ! group at its '/', and the rest reads as text outside a group)
+                end_line = tok_line
+                end_after_unquoted = .false.
+                if (expect_value .and. after_value .and. n_values > 0) &
+                    end_after_unquoted = .not. values(n_values)%quoted
                 if (expect_value) call store()
                 expect_value = .false.
                 groups = [groups, grp]
@@ -174,6 +185,15 @@ contains
                 call push(nml_value_t(text=token, quoted=is_quoted, line=at_line))
             end if
         end subroutine add_value
+
+        !> For text found after a group's end on that end's line, when an unquoted value
+        !> came right before the end: the '/' was most likely part of the value.
+        function slash_hint() result(text)
+            character(len=:), allocatable :: text
+            text = ''
+            if (end_after_unquoted .and. tok_line == end_line) text = ' (a / in an ' // &
+                "unquoted value ends its group: quote strings, 'output/run1')"
+        end function slash_hint
 
         !> Append one value to the pending key's.
         subroutine push(value)
