@@ -9,7 +9,7 @@ submodule (sph_stepper) sph_stepper_setup
     use sph_text_lines, only: next_line
     use sph_filesystem, only: text_buffer_t
     use sph_snapshot, only: read_snapshot_header
-    use sph_checkpoint, only: stored_spacing
+    use sph_checkpoint, only: stored_spacing, checkpoint_names
     use sph_initial, only: lattice_mass_factor
     use sph_particles, only: KIND_WALL
     use sph_physics, only: WALLS_MORRIS
@@ -347,6 +347,8 @@ contains
         sim%snapshot_index = index_text
         if (what == 'restart') call keep_listed_snapshots(sim, env, &
             trim(given%output%output_dir))
+        if (what == 'restart') call adopt_earlier_checkpoints(sim, env, path, &
+            trim(given%output%output_dir), trim(given%run%case_name))
         if (.not. same_layout) then
             call domain_partition(sim%domain, env, sim%p%x, sim%p%n_owned)
             call migrate(sim, env)
@@ -382,6 +384,64 @@ contains
             'from the one stored in the checkpoint; the new input is used')
         call log_setup(sim, env)
     end procedure simulation_restart
+
+    !> A run continued from a checkpoint in its own output folder (a job chain's link, a
+    !> restart there) goes on with the checkpoints of its case there up to that step as its
+    !> own, so that &restart checkpoints_kept holds over the whole chain (each link kept its
+    !> own: a 20-link chain left 21 checkpoints with checkpoints_kept = 2, fz42). A
+    !> checkpoint read from elsewhere adopts nothing: what the folder holds may be another
+    !> run's. Later steps' files are not this run's past (they are set aside: simulation_run).
+    subroutine adopt_earlier_checkpoints(sim, env, path, folder, case_name)
+        type(simulation_t), intent(inout) :: sim
+        type(mpi_env_t), intent(in) :: env
+        character(len=*), intent(in) :: path, folder, case_name
+        character(len=512), allocatable :: names(:)
+        integer(i8), allocatable :: steps(:)
+        integer, allocatable :: order(:)
+        integer :: stat, k, j, cut
+        cut = index(path, '/', back=.true.)
+        if (cut == 0) then
+            if (.not. same_folder('.', folder)) return
+        else
+            if (.not. same_folder(path(1:cut - 1), folder)) return
+        end if
+        call checkpoint_names(env, folder, case_name, names, steps, stat)
+        if (stat /= 0) return
+        order = pack([(k, k = 1, size(steps))], steps <= sim%step)
+        ! by step, oldest first (insertion: a folder holds a few)
+        do k = 2, size(order)
+            j = k
+            do while (j > 1)
+                if (steps(order(j - 1)) <= steps(order(j))) exit
+                order([j - 1, j]) = order([j, j - 1])
+                j = j - 1
+            end do
+        end do
+        sim%checkpoints = [character(len=512) :: (folder // '/' // trim(names(order(k))), &
+            k = 1, size(order))]
+    end subroutine adopt_earlier_checkpoints
+
+    !> Whether two folder names name one folder as the run writes them (a trailing '/', a
+    !> leading './'); two spellings of one folder through links are taken as two.
+    logical function same_folder(a, b)
+        character(len=*), intent(in) :: a, b
+        same_folder = plain(a) == plain(b)
+    contains
+        function plain(name) result(p)
+            character(len=*), intent(in) :: name
+            character(len=:), allocatable :: p
+            p = trim(name)
+            do while (len(p) > 2)
+                if (p(1:2) /= './') exit
+                p = p(3:)
+            end do
+            do while (len(p) > 1)
+                if (p(len(p):len(p)) /= '/') exit
+                p = p(1:len(p) - 1)
+            end do
+            if (len(p) == 0) p = '.'
+        end function plain
+    end function same_folder
 
     !> The checkpoint's snapshot index (the .xdmf series) without the snapshots that are not
     !> in `folder`: a run continued into another output_dir (from a checkpoint in an

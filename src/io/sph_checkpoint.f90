@@ -20,7 +20,7 @@ module sph_checkpoint
     implicit none
     private
     public :: write_checkpoint, read_checkpoint, checkpoint_filename, find_latest_checkpoint
-    public :: has_checkpoint
+    public :: has_checkpoint, checkpoint_names
     public :: checkpoint_format_version, stored_spacing
 
     integer(i4), parameter :: checkpoint_format_version = 1

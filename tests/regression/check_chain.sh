@@ -50,6 +50,10 @@ final=$(cd "$work/straight/output" && ls *_0*.h5 | grep -v checkpoint | sort | t
 "$python" "$comparer" "$work/straight/output/$final" "output/$final" || {
     echo "the chained run differs from the uninterrupted one"; exit 1; }
 echo "$stops interruptions, $((stops + 1)) jobs; $final identical to the uninterrupted run"
+# &restart checkpoints_kept (2 by default) holds over the chain, not per link (each link kept
+# its own: one checkpoint more per link)
+kept=$(ls output/*_checkpoint_*.h5 | wc -l)
+[ "$kept" -le 2 ] || { echo "the chain left $kept checkpoints (checkpoints_kept = 2)"; exit 1; }
 # A link started after the run's end (the job submitted again): done, status 0, no file of
 # the run's touched (it failed with status 1, and a chain's last link read as a failure)
 run_files() { find output -mindepth 1 ! -name 'chain-*' -printf '%p %s %T@\n' | sort; }
