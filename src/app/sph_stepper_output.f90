@@ -180,7 +180,7 @@ contains
         call evaluate_rates(sim, env)
         ! the memory in use after the set-up and a first evaluation of the rates, measured
         ! (the process's peak): the particle fields and the neighbour list alone, estimated
-        ! before, came out 1.4-2.7 times below a run's peak (the libraries' 27 MB a rank,
+        ! before, came out 1.4-2.7 times below a run's peak (the libraries' 19 MB a rank,
         ! the halo, the cell lists and the pair loop's scratch)
         mine = peak_resident_bytes()
         if (global_max(env, merge(1_i8, 0_i8, mine < 0)) == 0) then
@@ -193,7 +193,7 @@ contains
                 base) / max(1.0_wp, real(global_sum(env, int(sim%p%n_owned, i8)), wp)), &
                 i8)) // ' bytes a particle; ' // int_text(pairs) // ' neighbour pairs), ' // &
                 'measured after the set-up and a first evaluation of the rates: a run ' // &
-                'without remeshing peaks up to about 10 % above it')
+                'without remeshing peaks 4-6 MB a rank above it (the output''s buffers)')
         else
             call log_info('check: memory not measured (the system gives no peak resident ' // &
                 'set: /proc/self/status)')

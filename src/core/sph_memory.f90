@@ -26,7 +26,7 @@ module sph_memory
 contains
 
     !> Note the memory the process holds before any particle (call once MPI is started):
-    !> the libraries' share, which does not grow with the particles (about 27 MB a rank with
+    !> the libraries' share, which does not grow with the particles (about 19 MB a rank with
     !> Debian's Open MPI and HDF5; more with some interconnects' MPI).
     subroutine note_startup_memory()
         startup_bytes = peak_resident_bytes()
