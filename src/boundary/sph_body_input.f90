@@ -92,6 +92,21 @@ contains
             return   ! already reported
         end select
         round = any(trim(body%shape) == [character(len=9) :: 'circle', 'sphere', 'cylinder'])
+        ! keys of other shapes are read but mean nothing here (fz44: a rectangle's radius of
+        ! 5 m passed without a word)
+        if (round) then
+            call grp%note_if_given('lo', 'a ' // trim(body%shape) // ' is given by centre ' // &
+                'and radius')
+            call grp%note_if_given('hi', 'a ' // trim(body%shape) // ' is given by centre ' // &
+                'and radius')
+        else
+            call grp%note_if_given('centre', 'a ' // trim(body%shape) // ' is given by lo ' // &
+                'and hi')
+            call grp%note_if_given('radius', 'a ' // trim(body%shape) // ' is given by lo ' // &
+                'and hi')
+        end if
+        if (trim(body%shape) /= 'cylinder') call grp%note_if_given('axis', 'only a ' // &
+            'cylinder has an axis')
         if (round) then
             if (.not. (body%radius > 0.0_wp)) then
                 call grp%error('radius', 'must be > 0 (m) for a ' // trim(body%shape))
