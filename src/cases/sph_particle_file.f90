@@ -367,6 +367,17 @@ contains
             p%p(i) = eos_pressure(phys%eos, p%rho(i), phys%rho0, phys%c, phys%gamma) + &
                 phys%background_pressure
             p%h(i) = phys%kernel%h
+            ! a fluid particle's lattice parity as the lattice gives it at the nearest site
+            ! (sph_initial: a bit for an odd index along each axis), so that a run from a
+            ! file of the lattice is the lattice run in its checkpoints too (all 0 before:
+            ! fz43); its multi-resolution refinement takes the same particles
+            p%parity(i) = 0
+            if (p%kind(i) == KIND_FLUID) then
+                do axis = 1, cfg%domain%dimension
+                    if (modulo(nint((p%x(axis, i) - cfg%domain%box_lo(axis)) / cfg%domain%dx + &
+                        0.5_wp), 2) == 1) p%parity(i) = ibset(p%parity(i), axis - 1)
+                end do
+            end if
             p%x_old(:, i) = p%x(:, i)
             p%v_old(:, i) = p%v(:, i)
             p%rho_old(i) = p%rho(i)
