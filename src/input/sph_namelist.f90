@@ -197,6 +197,36 @@ contains
             printable(what)
     end subroutine group_error
 
+    !> text is well-formed UTF-8 (ASCII included): each lead byte followed by as many
+    !> continuation bytes as it announces, no overlong two-byte forms.
+    pure logical function valid_utf8(text)
+        character(len=*), intent(in) :: text
+        integer :: k, c, more, j
+        valid_utf8 = .false.
+        k = 1
+        do while (k <= len(text))
+            c = iachar(text(k:k))
+            if (c < 128) then
+                more = 0
+            else if (c >= 194 .and. c <= 223) then
+                more = 1
+            else if (c >= 224 .and. c <= 239) then
+                more = 2
+            else if (c >= 240 .and. c <= 244) then
+                more = 3
+            else
+                return
+            end if
+            if (k + more > len(text)) return
+            do j = k + 1, k + more
+                c = iachar(text(j:j))
+                if (c < 128 .or. c > 191) return
+            end do
+            k = k + more + 1
+        end do
+        valid_utf8 = .true.
+    end function valid_utf8
+
     !> text holds one of ASCII's control characters (tab included: not in a string value).
     pure logical function has_control(text)
         character(len=*), intent(in) :: text
@@ -603,6 +633,13 @@ contains
                     if (has_control(v%text)) then
                         call self%error(shown, "'" // v%text // "' holds a control " // &
                             'character' // value_line_text(self%items(i), k))
+                        cycle
+                    end if
+                    ! (Latin-1 bytes went raw into the HDF5 files' input, which readers take
+                    ! as UTF-8: fz48)
+                    if (.not. valid_utf8(v%text)) then
+                        call self%error(shown, 'holds bytes that are not UTF-8 text (save ' // &
+                            'the file as UTF-8)' // value_line_text(self%items(i), k))
                         cycle
                     end if
                     var(order(k)) = v%text
