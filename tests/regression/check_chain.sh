@@ -98,6 +98,23 @@ chmod +x launcher_after_stop
 status=$?
 [ $status -eq 75 ] || {
     echo "a stopped run with many lines after its stop gave $status, not 75"; exit 1; }
+# A run that reached its end while the job's signal reached its launcher too (which then
+# fails): done, 0 (the chain ended as a failure); one that failed after 'finished:' is not
+cat > launcher_after_end <<'SH'
+#!/usr/bin/env bash
+echo "finished: 20 steps to t =  1.00000E-01 s in       0.500 s wall"
+echo "peak memory: ..."
+exit 1
+SH
+chmod +x launcher_after_end
+"$chain" -n 2 -i second.nml -o output -l "$PWD/launcher_after_end" -x "$program"
+status=$?
+[ $status -eq 0 ] || { echo "a run that finished under a failing launcher gave $status"; exit 1; }
+sed -i 's/^echo "peak memory: ..."/echo "sphremesh: error in output: (a failure)"/' \
+    launcher_after_end
+"$chain" -n 2 -i second.nml -o output -l "$PWD/launcher_after_end" -x "$program"
+status=$?
+[ $status -eq 1 ] || { echo "a run that failed after 'finished:' gave $status, not 1"; exit 1; }
 # A link that fails while another chain sharing the log (an input of the same file name)
 # stops early: its own status (the other chain's line in the shared log made it 75, and the
 # failed link's job was resubmitted)
