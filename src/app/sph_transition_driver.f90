@@ -442,6 +442,7 @@ contains
                 end if
             end select
         end do
+        call keep_conversions_off_reals()
         ! 3. fresh ids for the virtuals that became real (rank-count independent keys)
         allocate(keys(2, max(n_conv, 1)), new_ids(max(n_conv, 1)))
         do k = 1, n_conv
@@ -496,6 +497,54 @@ contains
                 p%x_old(:, i) = p%x_old(:, i) + shift
             end if
         end function turns_real
+
+        !> A virtual that turns real where it is (its slot inside the region, itself too)
+        !> may stand on a real particle of its level that its slot did not: the slot is
+        !> checked (find_coincident) where the sources put it now, the particle moved with
+        !> the flow since it was made. Around a sphere with virtual_rule = 'remesh' a fine
+        !> virtual on the band's edge turned real 0.005 spacings from a real particle that
+        !> had just stayed inside (fz49). Such a conversion is not made: the virtual goes,
+        !> as a copy does.
+        subroutine keep_conversions_off_reals()
+            integer, allocatable :: reals(:), cand(:)
+            real(wp), allocatable :: xr(:, :)
+            type(neighbour_list_t) :: near
+            integer :: lv_c, j, r, kept
+            if (n_conv == 0) return
+            do lv_c = 0, zones%n_levels - 1
+                cand = pack(converted(1:n_conv), p%level(converted(1:n_conv)) == lv_c)
+                if (size(cand) == 0) cycle
+                reals = staying_reals(lv_c)
+                if (size(reals) == 0) cycle
+                xr = p%x(:, reals)
+                call build_cross_list(p%x(:, cand), size(cand), xr, size(reals), dim, &
+                    COINCIDENT * level_phys(lv_c)%dx, near)
+                do j = 1, size(cand)
+                    if (near%start(j + 1) == near%start(j)) cycle
+                    drop(cand(j)) = .true.
+                    stats%became_real(lv_c) = stats%became_real(lv_c) - 1
+                    stats%mass_in(lv_c) = stats%mass_in(lv_c) - p%m(cand(j))
+                end do
+            end do
+            kept = 0
+            do j = 1, n_conv
+                if (drop(converted(j))) cycle
+                kept = kept + 1
+                converted(kept) = converted(j)
+            end do
+            n_conv = kept
+        end subroutine keep_conversions_off_reals
+
+        !> The real fluid particles of level lv, owned and ghosts, that stay in its region.
+        function staying_reals(lv) result(reals)
+            integer, intent(in) :: lv
+            integer, allocatable :: reals(:)
+            integer :: r
+            reals = pack([(r, r = 1, p%n_owned + p%n_ghost)], &
+                p%level(1:p%n_owned + p%n_ghost) == lv .and. &
+                p%kind(1:p%n_owned + p%n_ghost) == KIND_FLUID)
+            reals = pack(reals, [(zones%level_at(p%x(:, reals(r))) == lv, r = 1, size(reals))])
+        end function staying_reals
 
         !> slotless_copy(i): owned virtual i has no slot, would turn real by its own position,
         !> and copies a real particle of its level (find_copies: the same parent and corner).
@@ -783,13 +832,8 @@ contains
             integer, allocatable :: reals(:)
             integer :: j, r
             if (n == 0) return
-            ! the real particles of the level that stay in its region (one leaving now is
-            ! replaced by the virtual standing in for it)
-            reals = pack([(r, r = 1, p%n_owned + p%n_ghost)], &
-                p%level(1:p%n_owned + p%n_ghost) == target .and. &
-                p%kind(1:p%n_owned + p%n_ghost) == KIND_FLUID)
-            reals = pack(reals, [(zones%level_at(p%x(:, reals(r))) == target, &
-                r = 1, size(reals))])
+            ! (one leaving now is replaced by the virtual standing in for it)
+            reals = staying_reals(target)
             if (size(reals) == 0) return
             xr = p%x(:, reals)
             call build_cross_list(x, n, xr, size(reals), dim, &

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Regression: a multi-resolution run (INPUT, writing its last checkpoint to output/) keeps no
-# two real fluid particles of one level within 0.05 of that level's spacing (copies: the input
-# says how they came).
+# Regression: a multi-resolution run (INPUT, writing its last checkpoint to output/; 2D or 3D,
+# a periodic box from the origin) keeps no two real fluid particles of one level within 0.05
+# of that level's spacing (copies: the input says how they came).
 # usage: check_no_coincident.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM INPUT WORKDIR PYTHON
 set -u
 mpiexec=$1 np_flag=$2 np=$3 extra=$4 program=$5 input=$6 work=$7 python=$8
@@ -21,10 +21,11 @@ text = f.attrs["input"]
 text = text.decode() if isinstance(text, bytes) else text
 dx = float([line.split("=")[1] for line in text.splitlines()
             if line.strip().startswith("dx =")][0])
+dim = int(f.attrs["dimension"])
 box = np.array([float(v) for v in [line.split("=")[1] for line in text.splitlines()
-                                   if line.strip().startswith("box_hi =")][0].split(",")[:2]])
+                                   if line.strip().startswith("box_hi =")][0].split(",")[:dim]])
 real = g["kind"][...] == 0
-x, level = g["position"][...][real, :2], g["level"][...][real]
+x, level = g["position"][...][real, :dim], g["level"][...][real]
 bad = 0
 for lv in np.unique(level):
     y = x[level == lv]
