@@ -509,7 +509,7 @@ contains
             integer, allocatable :: reals(:), cand(:)
             real(wp), allocatable :: xr(:, :)
             type(neighbour_list_t) :: near
-            integer :: lv_c, j, r, kept
+            integer :: lv_c, j, kept
             if (n_conv == 0) return
             do lv_c = 0, zones%n_levels - 1
                 cand = pack(converted(1:n_conv), p%level(converted(1:n_conv)) == lv_c)
@@ -830,7 +830,7 @@ contains
             type(neighbour_list_t) :: near
             real(wp), allocatable :: xr(:, :)
             integer, allocatable :: reals(:)
-            integer :: j, r
+            integer :: j
             if (n == 0) return
             ! (one leaving now is replaced by the virtual standing in for it)
             reals = staying_reals(target)
