@@ -126,7 +126,7 @@ contains
         character(len=*), intent(in) :: allowed(:), lists(:)
         integer, intent(inout) :: stat
         character(len=:), allocatable, intent(inout) :: errmsg
-        integer :: g, h, count
+        integer :: g, h, count, first
         do g = 1, size(self%groups)
             associate (name => self%groups(g)%name)
                 if (.not. any(name == allowed)) then
@@ -139,14 +139,19 @@ contains
                 end if
                 if (any(name == lists)) cycle
                 count = 0
+                first = 0
                 do h = 1, g - 1
-                    if (self%groups(h)%name == name) count = count + 1
+                    if (self%groups(h)%name /= name) cycle
+                    count = count + 1
+                    if (first == 0) first = h
                 end do
+                ! (both lines: the first was not named, fz48)
                 if (count == 1) then
                     stat = stat + 1
                     errmsg = errmsg // nl // '  ' // self%source // ':' // &
                         itoa(self%groups(g)%line) // ': namelist group &' // name // &
-                        ' appears more than once; give each group once'
+                        ' appears more than once (first on line ' // &
+                        itoa(self%groups(first)%line) // '); give each group once'
                 end if
             end associate
         end do
