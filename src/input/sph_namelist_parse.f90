@@ -405,25 +405,25 @@ contains
             end do
         end subroutine skip_blanks
 
-        !> The subscript at text(p:) joined to the key token when '=' follows it on
-        !> its line; p left at that '='. Otherwise token and p are left as they were.
+        !> The subscript at text(p:) joined to the key token when '=' follows it (on its
+        !> line, or after blank and comment lines: `body_force (1)` then `= 2e-4` on the next
+        !> was refused, fz48); p left at that '=', line counting the lines passed. Otherwise
+        !> token and p are left as they were.
         subroutine join_subscript(token, p)
             character(len=:), allocatable, intent(inout) :: token
             integer, intent(inout) :: p
-            integer :: q, r
+            integer :: q, r, lines
             q = index(text(p:), ')')
             if (q == 0) return
             q = p + q - 1
             if (scan(text(p:q), '=' // nl) > 0) return
             r = q + 1
-            do while (r <= len(text))
-                if (text(r:r) /= ' ' .and. text(r:r) /= achar(9)) exit
-                r = r + 1
-            end do
+            call skip_blanks(r, lines)
             if (r > len(text)) return
             if (text(r:r) /= '=') return
             token = token // text(p:q)
             p = r
+            line = line + lines
         end subroutine join_subscript
 
         subroutine read_string(str)
