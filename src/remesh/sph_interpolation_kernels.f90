@@ -37,6 +37,23 @@ contains
         end if
     end function lambda2
 
+    !> Lambda2 of a signed offset u (node minus target, or target minus node: one sign for
+    !> all the nodes of a target), its branches half-open on one side: 1 - u^2 on
+    !> [-1/2, 1/2), (1 - |u|)(2 - |u|)/2 on [-3/2, -1/2) and [1/2, 3/2). Lambda2 jumps at
+    !> |u| = 1/2 and 3/2, so a target midway between two nodes (a refinement's midpoints on
+    !> a lattice) met both nodes at |u| = 1/2 on the second branch: weights summing to 0.75
+    !> (fz50). Half-open, it takes the three nodes of one side, the quadratic through them.
+    pure elemental real(wp) function lambda2_signed(u) result(w)
+        real(wp), intent(in) :: u
+        if (u >= -0.5_wp .and. u < 0.5_wp) then
+            w = 1.0_wp - u * u
+        else if (u >= -1.5_wp .and. u < 1.5_wp) then
+            w = 0.5_wp * (1.0_wp - abs(u)) * (2.0_wp - abs(u))
+        else
+            w = 0.0_wp
+        end if
+    end function lambda2_signed
+
     !> M4', eq. 3.19: 1 - 5s^2/2 + 3s^3/2 (s < 1), (1 - s)(2 - s)^2/2 (1 <= s < 2), 0 beyond.
     pure elemental real(wp) function m4prime(s) result(w)
         real(wp), intent(in) :: s
@@ -96,13 +113,13 @@ contains
         end select
     end function interp_support
 
-    !> 1D kernel chosen at run time.
+    !> 1D kernel chosen at run time, of a signed offset s (Lambda2's ties: lambda2_signed).
     pure elemental real(wp) function interp_1d(kernel, s) result(w)
         integer, intent(in) :: kernel
         real(wp), intent(in) :: s
         select case (kernel)
         case (INTERP_LAMBDA2)
-            w = lambda2(s)
+            w = lambda2_signed(s)
         case (INTERP_M4PRIME)
             w = m4prime(s)
         case (INTERP_M4)
