@@ -16,8 +16,9 @@
 !>    corner opposite id_lo).
 !> Each centre is the mean of its corners. On a lattice of N sites (periodic) this gives
 !> N + dim N + (dim (dim - 1) / 2) N + [dim = 3] N = 2^dim N: 4N in 2D, 8N in 3D, a lattice
-!> of spacing dx/2. Midpoints alone give only N + dim N (2N in 2D, not 4N: each site has
-!> 2 dim neighbours, each edge shared by two sites), leaving the cell centres empty (errata).
+!> of spacing dx/2. Midpoints with the old sites give only N + dim N (3N in 2D, not 4N:
+!> each site has 2 dim neighbours, each edge shared by two sites), leaving the cell centres
+!> empty (errata).
 !>
 !> Keys. The low two bits of key(1) give the kind (0 site, 1 edge, 2 face, 3 cube), the rest
 !> the lowest corner id; key(2) the opposite corner. A face is fixed by its diagonal (two
@@ -93,8 +94,8 @@
 !>     - dx/4) / b when d1 < b (d1 < 0 counts as 0), b = min(WALL_BAND dx_new, (d1 + d2) /
 !>     2), d2 the distance to the next solid (or to the body's own next periodic image,
 !>     next_image_distance): the row on the surface goes to half a NEW
-!>     spacing, the rows behind it are compressed evenly by (b - dx/4) / b (1 - 1/80 for
-!>     WALL_BAND = 20 new spacings), beyond b nothing moves; b ends half-way to the next
+!>     spacing, the rows behind it are compressed evenly by (b - dx/4) / b (1 - 1/40 for
+!>     WALL_BAND = 20 new spacings, 10 old ones), beyond b nothing moves; b ends half-way to the next
 !>     solid, where the maps of both are the identity, so the map is continuous and monotone.
 !>     The map is smooth, so the disorder of the old set (and of the midpoint construction
 !>     inside) is kept; only distances along the normal shrink slightly in the band.
