@@ -197,10 +197,44 @@ contains
             errmsg = errmsg // new_line('a') // '  (the other checks are made once the ' // &
                 'unknown keys are put right)'
             stat = n_unknown
+        else if (sum(grp%n_direct) + sum(bodies%n_direct) + sum(regions%n_direct) > 0) then
+            ! likewise a value refused (not a number, not a choice, out of range): the
+            ! checks across keys read its default ('walll' in boundary added 'both faces
+            ! of an axis are periodic or neither', fz48)
+            errmsg = ''
+            stat = 0
+            do g = 1, size(known_groups)
+                errmsg = errmsg // collected(grp(g))
+            end do
+            do g = 1, size(bodies)
+                errmsg = errmsg // collected(bodies(g))
+            end do
+            do g = 1, size(regions)
+                errmsg = errmsg // collected(regions(g))
+            end do
+            if (stat < n_errors_total()) errmsg = errmsg // new_line('a') // &
+                '  (the checks across keys are made once these values are put right)'
         end if
         if (stat /= 0) errmsg = 'invalid input in ' // source_name // ':' // errmsg
         ! (each group's notes start with a new line; the first one is dropped)
         if (len(cfg%notes) > 0) cfg%notes = cfg%notes(2:)
+
+    contains
+
+        !> A group's errors in the values given, counted into stat.
+        function collected(g) result(text)
+            type(nml_group_t), intent(in) :: g
+            character(len=:), allocatable :: text
+            text = ''
+            if (g%n_direct == 0) return
+            text = g%direct
+            stat = stat + g%n_direct
+        end function collected
+
+        !> Every error of every group.
+        integer function n_errors_total()
+            n_errors_total = sum(grp%n_errors) + sum(bodies%n_errors) + sum(regions%n_errors)
+        end function n_errors_total
     end subroutine config_parse
 
     !> The fully resolved configuration as namelist text (defaults included), readable by

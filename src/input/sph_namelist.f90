@@ -60,11 +60,17 @@ module sph_namelist
         !> them alone, since a misspelt key leaves its default and what follows misleads
         character(len=:), allocatable :: unknown
         integer :: n_unknown = 0
+        !> the errors of the values given (conversion, range, choices, counts: the getters'),
+        !> apart: config_parse reports them alone, since the checks across keys then read
+        !> defaults that nobody wrote
+        character(len=:), allocatable :: direct
+        integer :: n_direct = 0
         integer :: instance = 0                  !< of a repeated group (1, 2, ...); 0: single
     contains
         procedure :: get_real, get_int, get_logical, get_string
         procedure :: get_real_array, get_real_matrix, get_string_array, get_real_list
         procedure :: error => group_error
+        procedure :: value_error => group_value_error
         procedure :: note => group_note, note_if_given
         procedure :: finish => group_finish
         procedure :: to_text => group_to_text
@@ -232,6 +238,19 @@ contains
         valid_utf8 = .true.
     end function valid_utf8
 
+    !> An error in a value given (a getter's): recorded as group_error does, and apart.
+    subroutine group_value_error(self, key, what)
+        class(nml_group_t), intent(inout) :: self
+        character(len=*), intent(in) :: key, what
+        integer :: k
+        if (.not. allocated(self%errors)) self%errors = ''
+        if (.not. allocated(self%direct)) self%direct = ''
+        k = len(self%errors)
+        call self%error(key, what)
+        self%direct = self%direct // self%errors(k + 1:)
+        self%n_direct = self%n_direct + 1
+    end subroutine group_value_error
+
     !> text holds one of ASCII's control characters (tab included: not in a string value).
     pure logical function has_control(text)
         character(len=*), intent(in) :: text
@@ -307,7 +326,7 @@ contains
         do i = 1, size(self%items)
             if (self%items(i)%key == key) then
                 if (find /= 0) then
-                    call self%error(key, 'given more than once (lines ' // &
+                    call self%value_error(key, 'given more than once (lines ' // &
                         itoa(self%items(find)%line) // ' and ' // &
                         itoa(self%items(i)%line) // ')')
                 end if
@@ -393,10 +412,10 @@ contains
         do k = 1, size(var)
             if (.not. in_range(var(k))) then
                 if (is_scalar) then
-                    call self%error(key, real_text(var(k)) // ' is out of range: must be ' // &
+                    call self%value_error(key, real_text(var(k)) // ' is out of range: must be ' // &
                         range // unit_suffix(unit) // given_at(set_line(k)))
                 else
-                    call self%error(key // '(' // itoa(k) // ')', real_text(var(k)) // &
+                    call self%value_error(key // '(' // itoa(k) // ')', real_text(var(k)) // &
                         ' is out of range: must be ' // range // unit_suffix(unit) // &
                         given_at(set_line(k)))
                 end if
@@ -455,16 +474,16 @@ contains
         i = self%find(key)
         if (i /= 0) then
             if (len(self%items(i)%subscript) > 0) then
-                call self%error(key, 'a list is given whole, without a subscript' // &
+                call self%value_error(key, 'a list is given whole, without a subscript' // &
                     line_text(self%items(i)))
             else if (size(self%items(i)%values) > max_count) then
-                call self%error(key, 'at most ' // itoa(max_count) // ' entries, got ' // &
+                call self%value_error(key, 'at most ' // itoa(max_count) // ' entries, got ' // &
                     itoa(size(self%items(i)%values)) // line_text(self%items(i)))
             else if (size(self%items(i)%values) == 1 .and. all(self%items(i)%values%null)) then
                 ! `key =` (or `key = ,`): none, as the default
                 continue
             else if (any(self%items(i)%values%null)) then
-                call self%error(key, 'a list has no empty entries' // line_text(self%items(i)))
+                call self%value_error(key, 'a list has no empty entries' // line_text(self%items(i)))
             else
                 n = size(self%items(i)%values)
                 call self%convert_reals(self%items(i), buf(1:n), [n])
@@ -473,7 +492,7 @@ contains
         var = buf(1:n)
         do k = 1, n
             if (present(min)) then
-                if (.not. var(k) >= min) call self%error(key, real_text(var(k)) // &
+                if (.not. var(k) >= min) call self%value_error(key, real_text(var(k)) // &
                     ' is out of range: must be ' // range_text(min, null(), null(), null()) &
                     // value_line_text(self%items(i), k))
             end if
@@ -509,12 +528,12 @@ contains
                     if (v%null) then
                         continue
                     else if (v%quoted) then
-                        call self%error(key, "'" // v%text // "' is not an integer" // &
+                        call self%value_error(key, "'" // v%text // "' is not an integer" // &
                             value_line_text(self%items(i), 1))
                     else
                         read(v%text, *, iostat=ios) var
                         if (ios /= 0) then
-                            call self%error(key, "'" // v%text // "' is not an integer" // &
+                            call self%value_error(key, "'" // v%text // "' is not an integer" // &
                                 value_line_text(self%items(i), 1))
                             var = default
                         end if
@@ -525,11 +544,11 @@ contains
         at = ''
         if (i /= 0) at = value_line_text(self%items(i), 1)
         if (present(min)) then
-            if (var < min) call self%error(key, itoa(var) // ' is out of range: must be ' // &
+            if (var < min) call self%value_error(key, itoa(var) // ' is out of range: must be ' // &
                 range // unit_suffix(unit) // at)
         end if
         if (present(max)) then
-            if (var > max) call self%error(key, itoa(var) // ' is out of range: must be ' // &
+            if (var > max) call self%value_error(key, itoa(var) // ' is out of range: must be ' // &
                 range // unit_suffix(unit) // at)
         end if
         call append_resolved(self, key, itoa(var))
@@ -551,12 +570,12 @@ contains
                     if (v%null) then
                         continue
                     else if (v%quoted) then
-                        call self%error(key, "'" // v%text // "' is not a logical" // &
+                        call self%value_error(key, "'" // v%text // "' is not a logical" // &
                             value_line_text(self%items(i), 1))
                     else
                         read(v%text, *, iostat=ios) var
                         if (ios /= 0) then
-                            call self%error(key, "'" // v%text // &
+                            call self%value_error(key, "'" // v%text // &
                                 "' is not a logical (.true. or .false.)" // &
                                 value_line_text(self%items(i), 1))
                             var = default
@@ -613,7 +632,7 @@ contains
             n = min(size(order), size(self%items(i)%values))
             ! as convert_reals: values beyond the elements are an error, not dropped
             if (size(order) > 0 .and. size(self%items(i)%values) > size(order)) &
-                call self%error(key, itoa(size(self%items(i)%values)) // ' values for ' // &
+                call self%value_error(key, itoa(size(self%items(i)%values)) // ' values for ' // &
                     itoa(size(order)) // ' element(s)' // line_text(self%items(i)) // &
                     missing_equals(self%items(i)))
             if (.not. claim_elements(self, self%items(i), order(1:n), [size(var)], set_line)) &
@@ -625,25 +644,25 @@ contains
                     ! the standard's namelist input delimits strings: unquoted, a '!' in
                     ! the value started a comment and a '/' ended the group
                     if (.not. v%quoted) then
-                        call self%error(shown, v%text // ' is not a quoted string (write ' // &
+                        call self%value_error(shown, v%text // ' is not a quoted string (write ' // &
                             quote(v%text) // ')' // value_line_text(self%items(i), k))
                         cycle
                     end if
                     if (len(v%text) > len(var)) then
-                        call self%error(shown, "'" // v%text // "' is longer than " // &
+                        call self%value_error(shown, "'" // v%text // "' is longer than " // &
                             itoa(len(var)) // ' characters' // value_line_text(self%items(i), k))
                         cycle
                     end if
                     ! (they would reach the log and every output file's stored input raw)
                     if (has_control(v%text)) then
-                        call self%error(shown, "'" // v%text // "' holds a control " // &
+                        call self%value_error(shown, "'" // v%text // "' holds a control " // &
                             'character' // value_line_text(self%items(i), k))
                         cycle
                     end if
                     ! (Latin-1 bytes went raw into the HDF5 files' input, which readers take
                     ! as UTF-8: fz48)
                     if (.not. valid_utf8(v%text)) then
-                        call self%error(shown, 'holds bytes that are not UTF-8 text (save ' // &
+                        call self%value_error(shown, 'holds bytes that are not UTF-8 text (save ' // &
                             'the file as UTF-8)' // value_line_text(self%items(i), k))
                         cycle
                     end if
@@ -658,7 +677,7 @@ contains
                 shown = key
                 if (.not. is_scalar) shown = key // '(' // itoa(k) // ')'
                 ! (with the value's line and the nearest choice, as an unknown key has)
-                call self%error(shown, "'" // trim(var(k)) // "' is not one of " // range // &
+                call self%value_error(shown, "'" // trim(var(k)) // "' is not one of " // range // &
                     given_at(set_line(k)) // suggestion(trim(var(k)), choices))
             end do
         end if
@@ -688,7 +707,7 @@ contains
         i = self%find(key)
         if (i == 0) return
         if (len(self%items(i)%subscript) > 0) then
-            call self%error(key, 'a scalar takes no subscript' // line_text(self%items(i)))
+            call self%value_error(key, 'a scalar takes no subscript' // line_text(self%items(i)))
             return
         end if
         items = [i]
@@ -699,10 +718,10 @@ contains
         integer, intent(in) :: i
         single_value = .false.
         if (len(self%items(i)%subscript) > 0) then
-            call self%error(self%items(i)%key, 'a scalar takes no subscript' // &
+            call self%value_error(self%items(i)%key, 'a scalar takes no subscript' // &
                 line_text(self%items(i)))
         else if (size(self%items(i)%values) /= 1) then
-            call self%error(self%items(i)%key, 'expects one value, got ' // &
+            call self%value_error(self%items(i)%key, 'expects one value, got ' // &
                 itoa(size(self%items(i)%values)) // line_text(self%items(i)) // &
                 missing_equals(self%items(i)))
         else
@@ -725,7 +744,7 @@ contains
             if (item%values(k)%null) cycle
             element = order(k)
             if (set_line(element) == 0) cycle
-            call self%error(element_label(item%key, element, shp), &
+            call self%value_error(element_label(item%key, element, shp), &
                 'given more than once (lines ' // &
                 itoa(set_line(element)) // ' and ' // itoa(value_line(item, k)) // ')')
             claimed = .false.
@@ -830,7 +849,7 @@ contains
         order = self%element_order(item, shp)
         if (size(order) == 0) return
         if (size(item%values) > size(order)) then
-            call self%error(item%key, itoa(size(item%values)) // ' values for ' // &
+            call self%value_error(item%key, itoa(size(item%values)) // ' values for ' // &
                 itoa(size(order)) // ' element(s)' // line_text(item) // missing_equals(item))
             return
         end if
@@ -843,7 +862,7 @@ contains
                 shown = element_label(item%key, order(k), shp)
                 at_line = value_line_text(item, k)
                 if (v%quoted) then
-                    call self%error(shown, "'" // v%text // "' is not a real number" // at_line)
+                    call self%value_error(shown, "'" // v%text // "' is not a real number" // at_line)
                     cycle
                 end if
                 ! a value beyond huge() reads as Infinity and raises the overflow flag, which
@@ -854,13 +873,13 @@ contains
                 call ieee_set_flag(ieee_overflow, .false.)
                 call ieee_set_halting_mode(ieee_overflow, halting)
                 if (ios /= 0) then
-                    call self%error(shown, "'" // v%text // "' is not a real number" // at_line)
+                    call self%value_error(shown, "'" // v%text // "' is not a real number" // at_line)
                     cycle
                 end if
                 ! NaN, Infinity and overflowing values (1e400 reads as Infinity) would pass
                 ! range checks that compare false and break the code that prints them
                 if (.not. ieee_is_finite(x)) then
-                    call self%error(shown, "'" // v%text // "' is not a finite number" // &
+                    call self%value_error(shown, "'" // v%text // "' is not a finite number" // &
                         at_line)
                     cycle
                 end if
@@ -870,7 +889,7 @@ contains
                 ! is below them too
                 if ((x /= 0.0_wp .and. (abs(x) < MIN_MAGNITUDE .or. abs(x) > MAX_MAGNITUDE)) &
                     .or. (x == 0.0_wp .and. nonzero_mantissa(v%text))) then
-                    call self%error(shown, "'" // v%text // "' is outside the magnitudes " // &
+                    call self%value_error(shown, "'" // v%text // "' is outside the magnitudes " // &
                         'sphremesh computes with (0, or 1e-30 to 1e30 in SI units)' // at_line)
                     cycle
                 end if
@@ -936,7 +955,7 @@ contains
         end if
         call split_commas(item%subscript, parts)
         if (size(parts) /= size(shp)) then
-            call self%error(item%key, '(' // item%subscript // ') needs ' // itoa(size(shp)) // &
+            call self%value_error(item%key, '(' // item%subscript // ') needs ' // itoa(size(shp)) // &
                 ' subscript(s)' // line_text(item))
             return
         end if
@@ -944,7 +963,7 @@ contains
         do d = 1, size(shp)
             c = index(parts(d), ':')
             if (c > 0 .and. index(parts(d)(c + 1:), ':') > 0) then
-                call self%error(item%key, '(' // item%subscript // '): a stride (lo:hi:step) ' // &
+                call self%value_error(item%key, '(' // item%subscript // '): a stride (lo:hi:step) ' // &
                     'is not supported; give a range lo:hi or the elements one by one' // &
                     line_text(item))
                 return
@@ -965,19 +984,19 @@ contains
                     call read_index(parts(d)(c + 1:), hi(d), ios)
             end if
             if (ios /= 0) then
-                call self%error(item%key, '(' // item%subscript // "): '" // &
+                call self%value_error(item%key, '(' // item%subscript // "): '" // &
                     trim(adjustl(parts(d))) // "' is not an integer subscript or range lo:hi" // &
                     line_text(item))
                 return
             end if
             if (lo(d) > hi(d)) then
-                call self%error(item%key, '(' // item%subscript // '): the range ' // &
+                call self%value_error(item%key, '(' // item%subscript // '): the range ' // &
                     itoa(lo(d)) // ':' // itoa(hi(d)) // ' is empty (lo above hi)' // &
                     line_text(item))
                 return
             end if
             if (lo(d) < 1 .or. hi(d) > shp(d)) then
-                call self%error(item%key, '(' // item%subscript // ') is outside (' // &
+                call self%value_error(item%key, '(' // item%subscript // ') is outside (' // &
                     join_ints(shp) // ')' // line_text(item))
                 return
             end if
