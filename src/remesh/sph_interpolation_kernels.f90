@@ -43,6 +43,8 @@ contains
     !> |u| = 1/2 and 3/2, so a target midway between two nodes (a refinement's midpoints on
     !> a lattice) met both nodes at |u| = 1/2 on the second branch: weights summing to 0.75
     !> (fz50). Half-open, it takes the three nodes of one side, the quadratic through them.
+    !> A target a rounding off the middle still meets whatever the roundings of its nodes'
+    !> offsets say (unused by the remeshing, which takes M4).
     pure elemental real(wp) function lambda2_signed(u) result(w)
         real(wp), intent(in) :: u
         if (u >= -0.5_wp .and. u < 0.5_wp) then
