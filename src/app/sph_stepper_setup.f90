@@ -14,6 +14,7 @@ submodule (sph_stepper) sph_stepper_setup
     use sph_particles, only: KIND_WALL
     use sph_physics, only: WALLS_MORRIS
     use sph_walls, only: body_holds_site
+    use sph_rates, only: local_max_speed
     implicit none
 
 contains
@@ -28,13 +29,8 @@ contains
         type(mpi_env_t), intent(in) :: env
         type(config_t), intent(in) :: cfg
         real(wp) :: fastest
-        integer :: i
         if (cfg%fluid%sound_speed > 0.0_wp .or. cfg%fluid%velocity_scale > 0.0_wp) return
-        fastest = 0.0_wp
-        do i = 1, sim%p%n_owned
-            if (sim%p%kind(i) == KIND_FLUID) fastest = max(fastest, norm2(sim%p%v(:, i)))
-        end do
-        fastest = global_max(env, fastest)
+        fastest = global_max(env, local_max_speed(sim%p, .false.))
         if (fastest > 1.1_wp * sim%phys%velocity_scale) call fatal_collective('set-up', &
             "&domain initial_particles: the file's fastest fluid particle moves at " // &
             sci_text(fastest, 4) // ' m/s, above the velocity scale of the automatic ' // &
@@ -397,8 +393,8 @@ contains
         character(len=*), intent(in) :: path, folder, case_name
         character(len=512), allocatable :: names(:)
         integer(i8), allocatable :: steps(:)
-        integer, allocatable :: order(:)
-        integer :: stat, k, j, cut
+        integer, allocatable :: mine(:), order(:)
+        integer :: stat, k, cut
         cut = index(path, '/', back=.true.)
         if (cut == 0) then
             if (.not. same_folder('.', folder)) return
@@ -407,18 +403,12 @@ contains
         end if
         call checkpoint_names(env, folder, case_name, names, steps, stat)
         if (stat /= 0) return
-        order = pack([(k, k = 1, size(steps))], steps <= sim%step)
-        ! by step, oldest first (insertion: a folder holds a few)
-        do k = 2, size(order)
-            j = k
-            do while (j > 1)
-                if (steps(order(j - 1)) <= steps(order(j))) exit
-                order([j - 1, j]) = order([j, j - 1])
-                j = j - 1
-            end do
-        end do
-        sim%checkpoints = [character(len=512) :: (folder // '/' // trim(names(order(k))), &
-            k = 1, size(order))]
+        mine = pack([(k, k = 1, size(steps))], steps <= sim%step)
+        ! by step, oldest first
+        allocate(order(size(mine)))
+        call id_order(steps(mine), size(mine), order)
+        sim%checkpoints = [character(len=512) :: (folder // '/' // trim(names(mine(order(k)))), &
+            k = 1, size(mine))]
     end subroutine adopt_earlier_checkpoints
 
     !> Whether two folder names name one folder as the run writes them (a trailing '/', a
