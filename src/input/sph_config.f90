@@ -135,7 +135,7 @@ contains
         type(nml_file_t) :: file
         type(nml_group_t) :: grp(size(known_groups))
         type(nml_group_t), allocatable :: bodies(:), regions(:)
-        integer :: g, n_unknown
+        integer :: g, n_unknown, n_direct
 
         cfg%source_file = source_name
         call nml_parse(text, source_name, file, stat, errmsg)
@@ -183,37 +183,19 @@ contains
         ! value nobody wrote ('ddx' gave two messages on the box's spacings before the
         ! unknown key): the unknown keys alone, as for an unknown group (fz48)
         n_unknown = sum(grp%n_unknown) + sum(bodies%n_unknown) + sum(regions%n_unknown)
+        n_direct = sum(grp%n_direct) + sum(bodies%n_direct) + sum(regions%n_direct)
         if (n_unknown > 0) then
-            errmsg = ''
-            do g = 1, size(known_groups)
-                errmsg = errmsg // grp(g)%unknown
-            end do
-            do g = 1, size(bodies)
-                errmsg = errmsg // bodies(g)%unknown
-            end do
-            do g = 1, size(regions)
-                errmsg = errmsg // regions(g)%unknown
-            end do
-            errmsg = errmsg // new_line('a') // '  (the other checks are made once the ' // &
-                'unknown keys are put right)'
+            errmsg = all_groups(.true.) // new_line('a') // '  (the other checks are made ' // &
+                'once the unknown keys are put right)'
             stat = n_unknown
-        else if (sum(grp%n_direct) + sum(bodies%n_direct) + sum(regions%n_direct) > 0) then
+        else if (n_direct > 0) then
             ! likewise a value refused (not a number, not a choice, out of range): the
             ! checks across keys read its default ('walll' in boundary added 'both faces
             ! of an axis are periodic or neither', fz48)
-            errmsg = ''
-            stat = 0
-            do g = 1, size(known_groups)
-                errmsg = errmsg // collected(grp(g))
-            end do
-            do g = 1, size(bodies)
-                errmsg = errmsg // collected(bodies(g))
-            end do
-            do g = 1, size(regions)
-                errmsg = errmsg // collected(regions(g))
-            end do
-            if (stat < n_errors_total()) errmsg = errmsg // new_line('a') // &
+            errmsg = all_groups(.false.)
+            if (n_direct < stat) errmsg = errmsg // new_line('a') // &
                 '  (the checks across keys are made once these values are put right)'
+            stat = n_direct
         end if
         if (stat /= 0) errmsg = 'invalid input in ' // source_name // ':' // errmsg
         ! (each group's notes start with a new line; the first one is dropped)
@@ -221,20 +203,31 @@ contains
 
     contains
 
-        !> A group's errors in the values given, counted into stat.
-        function collected(g) result(text)
-            type(nml_group_t), intent(in) :: g
+        !> Every group's unknown-key errors (unknown) or value errors, in file order.
+        function all_groups(unknown) result(text)
+            logical, intent(in) :: unknown
             character(len=:), allocatable :: text
             text = ''
-            if (g%n_direct == 0) return
-            text = g%direct
-            stat = stat + g%n_direct
-        end function collected
+            do g = 1, size(known_groups)
+                text = text // part(grp(g), unknown)
+            end do
+            do g = 1, size(bodies)
+                text = text // part(bodies(g), unknown)
+            end do
+            do g = 1, size(regions)
+                text = text // part(regions(g), unknown)
+            end do
+        end function all_groups
 
-        !> Every error of every group.
-        integer function n_errors_total()
-            n_errors_total = sum(grp%n_errors) + sum(bodies%n_errors) + sum(regions%n_errors)
-        end function n_errors_total
+        !> One group's unknown-key errors or value errors ('' when it has none).
+        function part(group, unknown) result(text)
+            type(nml_group_t), intent(in) :: group
+            logical, intent(in) :: unknown
+            character(len=:), allocatable :: text
+            text = ''
+            if (unknown .and. group%n_unknown > 0) text = group%unknown
+            if (.not. unknown .and. group%n_direct > 0) text = group%direct
+        end function part
     end subroutine config_parse
 
     !> The fully resolved configuration as namelist text (defaults included), readable by
