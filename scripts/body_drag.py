@@ -4,6 +4,7 @@ the body force on the fluid, and its convergence with resolution.
 
     scripts/body_drag.py OUTPUT_DIR [OUTPUT_DIR ...] [--case NAME] [--body cylinder]
                          [--time-averaged] [--max-imbalance 1.0]
+                         [--figure drag.png [--labels A,B,...]]
 
 Each directory's case name is that of its one <case>_forces.csv unless --case names it, so
 runs of different inputs compare directly (for example output/cylinder against
@@ -24,6 +25,10 @@ resolutions and their ratios. Exits 1 when an imbalance exceeds --max-imbalance 
 mean fluid velocity is farther than --max-reference-deviation percent from Sangani &
 Acrivos' (for creeping flow), or, with --require-convergence, when a change of the
 resistance is not at most half the previous one.
+
+--figure draws the drag of each row over rho0 F A_fluid against time (1 is the balance, with
+its 1 % band) and the mean fluid velocity of each snapshot against time, with Sangani &
+Acrivos' Stokes value where it applies; the shaded time is the one averaged.
 
 Body force and pressure gradient: a body force F on the fluid alone drives the same flow as
 a mean pressure gradient G = rho0 F (the fluid's equations are the same), but the linear
@@ -153,13 +158,12 @@ def case_of(output_dir, case):
     return os.path.basename(found[0])[:-len('_forces.csv')]
 
 
-def mean_speed(found, t_from, axis):
-    """Mass-weighted mean fluid velocity along the body force, averaged over the snapshots
-    from t_from on (the superficial velocity of Darcy's law times the porosity)."""
-    speeds = []
+def speed_series(found, axis):
+    """(time, mass-weighted mean fluid velocity along the body force) of each readable
+    snapshot of `found` (snapshots()): the superficial velocity of Darcy's law times the
+    porosity."""
+    series = []
     for time, name in found:
-        if time < t_from:
-            continue
         try:
             with h5py.File(name, 'r') as f:
                 g = f['particles']
@@ -169,8 +173,53 @@ def mean_speed(found, t_from, axis):
         except (OSError, KeyError) as problem:
             print(f'body_drag: skipped {name}: not readable ({problem})', file=sys.stderr)
             continue
-        speeds.append(speed)
+        series.append((time, speed))
+    return series
+
+
+def mean_speed(series, t_from):
+    """The mean of speed_series' speeds from t_from on (NaN when none)."""
+    speeds = [speed for time, speed in series if time >= t_from]
     return float(np.mean(speeds)) if speeds else float('nan')
+
+
+def draw(path, runs):
+    """The figure of the runs (dicts: label, rows' times and drags over rho0 F A_fluid,
+    speed series, Sangani & Acrivos' speed or None, the averaged window's start): the drag
+    over time against the body force on the fluid (1, with the 1 % band), and the mean
+    fluid velocity over time against the reference."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
+    left.axhspan(0.99, 1.01, color='0.85', label='body force on the fluid, 1 %')
+    left.axhline(1.0, color='0.4', lw=0.8)
+    references = []
+    for run in runs:
+        line, = left.plot(run['times'], run['ratios'], lw=1.0, label=run['label'])
+        if run['speeds']:
+            t, u = zip(*run['speeds'])
+            right.plot(t, u, 'o-', ms=3, lw=1.0, color=line.get_color(), label=run['label'])
+        if run['reference'] is not None and all(
+                abs(run['reference'] - r) > 1e-3 * abs(r) for r in references):
+            references.append(run['reference'])
+    for k, reference in enumerate(references):
+        right.axhline(reference, color='k', ls='--', lw=0.8,
+                      label="Sangani & Acrivos (Stokes)" if k == 0 else None)
+    start = min(run['t_from'] for run in runs)
+    for ax in (left, right):
+        ax.axvspan(start, max(run['times'][-1] for run in runs), color='C0', alpha=0.06)
+        ax.set_xlabel('t [s]')
+        ax.legend(fontsize=8)
+    top = max(1.2, min(2.0, max(max(run['ratios']) for run in runs) * 1.05))
+    left.set_ylim(0.0, top)
+    left.set_ylabel('drag / (rho0 F A_fluid)')
+    left.set_title('drag (step means of each row), averaged in the shaded time', fontsize=9)
+    right.set_ylabel('mean fluid velocity [m/s]')
+    right.set_title('mean fluid velocity of each snapshot', fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
 
 
 def time_averaged(rows, last, key, out):
@@ -209,6 +258,10 @@ def main():
     ap.add_argument('--max-reference-deviation', type=float, default=None,
                     help="percent: fail when the mean fluid velocity is farther from Sangani & "
                          "Acrivos' (only for creeping flow, where their expansion holds)")
+    ap.add_argument('--figure', default=None,
+                    help='write a PNG of the drag and the mean fluid velocity over time')
+    ap.add_argument('--labels', default=None,
+                    help="the runs' names in the figure, comma-separated (default L/n)")
     args = ap.parse_args()
     # (a negative fraction indexed past the rows: a traceback)
     if not 0.0 < args.fraction <= 1.0:
@@ -216,9 +269,14 @@ def main():
     for out in args.output_dirs:
         if not os.path.isdir(out):
             ap.error(f"'{out}' is not a directory (give the runs' output folders)")
+    labels = args.labels.split(',') if args.labels is not None else None
+    if labels is not None and len(labels) != len(args.output_dirs):
+        ap.error(f'--labels names {len(labels)} runs, {len(args.output_dirs)} are given')
+    if args.figure is not None and not args.figure.lower().endswith('.png'):
+        ap.error('--figure must name a .png file')
 
-    drags, speeds, resistances, failed = [], [], [], False
-    for out in args.output_dirs:
+    drags, speeds, resistances, failed, runs = [], [], [], False, []
+    for index, out in enumerate(args.output_dirs):
         case = case_of(out, args.case)
         found = snapshots(out, case)
         text, dx = input_and_spacing(found)
@@ -257,11 +315,19 @@ def main():
         expected = rho0 * force[axis] * fluid
         imbalance = 100.0 * (drag - expected) / expected
         drags.append(drag)
-        speeds.append(mean_speed(found, (1.0 - args.fraction) * t_end, axis))
+        series = speed_series(found, axis)
+        speeds.append(mean_speed(series, (1.0 - args.fraction) * t_end))
         porosity = fluid / cell
         # drag per unit superficial flow of the pressure-driven problem (module docstring)
         resistances.append(drag / porosity / (rho0 * nu * porosity * speeds[-1]))
         reference = sangani_acrivos_speed(text, dim, lo, hi, expected, nu, rho0)
+        # the figure's drag: each row's step mean where the file has them, as averaged
+        shown = key + '_mean' if rows[0].get(key + '_mean') is not None else key
+        runs.append({'label': labels[index] if labels else f'L/{(hi[0] - lo[0]) / dx:.0f}',
+                     'times': [float(r['time']) for r in rows],
+                     'ratios': [float(r[shown]) / expected for r in rows],
+                     'speeds': series, 'reference': reference,
+                     't_from': float(last[0]['time'])})
         print(f'{out}: dx = {dx:g} m (L/{(hi[0] - lo[0]) / dx:.0f}), {len(last)} rows from t = '
               f'{float(last[0]["time"]):g} to {t_end:g} s, drag {drag:.6e}, rho0 F A_fluid '
               f'{expected:.6e} ({"N/m" if dim == 2 else "N"}), imbalance {imbalance:+.3f} %, '
@@ -292,6 +358,9 @@ def main():
                 if args.require_convergence and name == 'resistance' and ratio > 0.5:
                     failed = True
             print(line)
+    if args.figure is not None:
+        draw(args.figure, runs)
+        print(f'body_drag: wrote {args.figure}')
     if failed:
         print('body_drag: a threshold was exceeded', file=sys.stderr)
         return 1

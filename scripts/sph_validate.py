@@ -36,6 +36,7 @@ sys.path.insert(0, HERE)
 # python3, before install-deps has made the venv (numpy, h5py)
 try:
     import numpy as np
+    import sph_analytic
     import sph_error_table
     import sph_snapshot
     MISSING_TOOLS = None
@@ -314,7 +315,72 @@ def case_channel(runner, args):
         status, text = script("sph_plot_profiles.py", *files, "--output", figure)
         if status != 0:
             block.failed.append(f"channel: the {case} figure failed: {text.strip()}")
-    return [block, variants]
+    return [block, variants, channel_convergence(rows)]
+
+
+def channel_convergence(rows, figure_dir=os.path.join(ROOT, "doc")):
+    """The channel_convergence block: the 2D channels' errors at L/20, L/40, L/80 with the
+    observed orders log2(e(n) / e(2n)) at each time, for Morris' walls and the quadratic
+    ones, and channel_convergence.png in figure_dir. Reported, not held: the errors are held in the
+    tables above."""
+    block = Block("channel_convergence")
+    errors = {(case, n, numerics): e for case, n, numerics, e in rows if e is not None}
+    titles = {"poiseuille": "Poiseuille", "couette": "Couette"}
+    walls = {"linear": "Morris' (linear)", "quadratic": "quadratic"}
+    resolutions = (20, 40, 80)
+    block.lines += ["| case | walls | t [s] | L/20 | L/40 | L/80 | order 20-40 | order 40-80 |",
+                    "|---|---|---|---|---|---|---|---|"]
+    curves = []
+    for case in titles:
+        for numerics in walls:
+            found = [errors.get((case, n, numerics)) for n in resolutions]
+            if any(e is None for e in found):
+                block.failed.append(f"channel_convergence: {case} ({numerics}) lacks a run")
+                continue
+            for k, t in enumerate(CHANNEL_TIMES):
+                e = [found[j][k] for j in range(3)]
+                orders = [np.log2(e[j] / e[j + 1]) if e[j + 1] > 0 else float("nan")
+                          for j in range(2)]
+                block.lines.append(
+                    f"| {titles[case]} | {walls[numerics]} | {t:g} | " +
+                    " | ".join(percent(x) for x in e) + " | " +
+                    " | ".join(f"{o:.2f}" for o in orders) + " |")
+                curves.append((case, numerics, t, e))
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        import matplotlib.ticker
+    except ImportError:
+        block.failed.append("channel_convergence: matplotlib missing for the figure")
+        return block
+    fig, axes = plt.subplots(1, 2, figsize=(12.5, 4))
+    for ax, case in zip(axes, titles):
+        for case_, numerics, t, e in curves:
+            if case_ != case:
+                continue
+            k = CHANNEL_TIMES.index(t)
+            ax.loglog(resolutions, e, "o-" if numerics == "linear" else "s--", ms=4,
+                      color=f"C{k}", label=f"t = {t:g} s, {walls[numerics]} walls")
+        first = [e for case_, numerics, t, e in curves
+                 if case_ == case and numerics == "linear" and t == CHANNEL_TIMES[0]]
+        if first:
+            guide = first[0][0] * (np.array(resolutions) / resolutions[0]) ** -2.0
+            ax.loglog(resolutions, guide, "k:", lw=0.8, label="second order")
+        ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
+        ax.set_xticks(resolutions)
+        ax.set_xticklabels([f"L/{n}" for n in resolutions])
+        ax.set_xlabel("particle spacing")
+        ax.set_ylabel("relative L2 velocity error [%]")
+        ax.set_title(titles[case], fontsize=10)
+    # one legend beside both panels (the curves are the same in each)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="center right", fontsize=8)
+    fig.tight_layout(rect=(0.0, 0.0, 0.79, 1.0))
+    fig.savefig(os.path.join(figure_dir, "channel_convergence.png"), dpi=120)
+    plt.close(fig)
+    block.lines += ["", "![errors of the channels against the spacing](channel_convergence.png)"]
+    return block
 
 
 def case_long_poiseuille(runner, args):
@@ -474,13 +540,16 @@ def body_lattice_block(runner, name, body, resolutions, parallel_from, source=No
     converge = converge and len(outs) >= 3
     if converge:
         flags.append("--require-convergence")
+    figure = f"{name}_drag.png"
+    flags += ["--figure", os.path.join(ROOT, "doc", figure)]
     status, text = script("body_drag.py", *outs, *flags)
     reference = ("" if reference_limit is None else
                  f", mean velocity within {reference_limit:g} % of Sangani & Acrivos")
     block.lines += ["```", text.strip(), "```", "",
                     f"Drag within 1 % of the body force"
                     f"{' and converging' if converge else ''}{reference}: "
-                    f"{'yes' if status == 0 else '**NO**'}"]
+                    f"{'yes' if status == 0 else '**NO**'}", "",
+                    f"![{name}: drag and mean fluid velocity over time]({figure})"]
     if status != 0:
         block.failed.append(f"{name}: body_drag reported a threshold exceeded")
     return [block]
@@ -567,7 +636,9 @@ def case_cylinder_remesh(runner, args):
     last_diff, _ = l2(fields[1][-1], fields[0][-1])
     noise, _ = l2(fields[0][-2], fields[0][-1])
     status, text = script("body_drag.py", plain, remeshed, "--case", "cylinder",
-                          "--fraction", "0.5", "--time-averaged")
+                          "--fraction", "0.5", "--time-averaged", "--labels",
+                          "L/50,L/50 remeshed every 500 s", "--figure",
+                          os.path.join(ROOT, "doc", "cylinder_remesh_drag.png"))
     drags = [float(v) for v in re.findall(r", drag ([0-9.eE+-]+),", text)][:2]
     drag_diff = (100.0 * abs(drags[1] - drags[0]) / abs(drags[0])
                  if len(drags) == 2 else None)
@@ -581,7 +652,11 @@ def case_cylinder_remesh(runner, args):
         f"{noise:.2f} % | | |",
         f"| drag (mean over 3000-6000 s), relative difference | {percent(drag_diff)} | 2 % | "
         f"{block.check('drag difference', drag_diff, 2.0)} |",
-        "", "```", text.strip(), "```"]
+        "", "```", text.strip(), "```", "",
+        "![cylinder with and without remeshing: drag and mean fluid velocity over time]"
+        "(cylinder_remesh_drag.png)"]
+    if status != 0 or "body_drag: wrote" not in text:
+        block.failed.append("cylinder_remesh: body_drag failed")
     return [block]
 
 
@@ -629,6 +704,14 @@ def case_cylinder_multires(runner, args):
     block.lines += ["", f"Real fluid mass: largest drift over the run's {len(drifts)} log "
                     f"lines {worst:.2g} % (limit 0.1 %): "
                     f"{block.check('real mass drift', worst, 0.1)}"]
+    # each folder's case from its one forces file (cylinder, cylinder_multires)
+    status, text = script("body_drag.py", plain, multi, "--fraction", "0.5", "--time-averaged",
+                          "--labels", "L/50,L/25 with an L/50 ring", "--figure",
+                          os.path.join(ROOT, "doc", "cylinder_multires_drag.png"))
+    if status != 0:
+        block.failed.append(f"cylinder_multires: body_drag failed: {text.strip()[-300:]}")
+    block.lines += ["", "![cylinder with a refined ring against the uniformly fine run: drag and "
+                    "mean fluid velocity over time](cylinder_multires_drag.png)"]
     return [block]
 
 
@@ -788,8 +871,8 @@ def case_remesh_continue(runner, args):
         window = ((3000.0, 6000.0),)
         drag = (window_drags(cont, "cylinder", window)[0],
                 window_drags(plain, "cylinder", window)[0])
-        speed = (body_drag.mean_speed(body_drag.snapshots(cont, "cylinder"), 3000.0, 0),
-                 body_drag.mean_speed(body_drag.snapshots(plain, "cylinder"), 3000.0, 0))
+        speed = tuple(body_drag.mean_speed(body_drag.speed_series(
+            body_drag.snapshots(out, "cylinder"), 0), 3000.0) for out in (cont, plain))
         for what, (a, b), unit in (("drag, mean 3000-6000 s", drag, "N/m"),
                                    ("mean fluid velocity, 3000-6000 s", speed, "m/s")):
             block.lines.append(f"| {label} | {what} [{unit}] | {a:.4e} | {b:.4e} | "
@@ -879,7 +962,7 @@ def case_ranks(runner, args):
     """The Poiseuille channel for 1,000 steps on 1, 2 and 4 ranks: velocities by particle id
     agree within 1e-9 of the peak."""
     block = Block("ranks")
-    velocities = {}
+    velocities, last = {}, {}
     for n in (1, 2, 4):
         out = runner.run(f"ranks_np{n}", "poiseuille.nml", {
             "run": {"t_end": 0.132},
@@ -890,6 +973,8 @@ def case_ranks(runner, args):
         snap = sph_snapshot.load(sph_snapshot.list_snapshots(out)[-1])
         order = np.argsort(snap["id"])
         velocities[n] = (snap["id"][order], snap["velocity"][order], snap["step"])
+        fluid = snap["kind"][order] == 0
+        last[n] = (snap, fluid, snap["position"][order])
     ids1, v1, steps = velocities[1]
     peak = np.abs(v1).max()
     block.lines += ["| ranks | steps | particles | largest difference / peak velocity | held |",
@@ -900,8 +985,57 @@ def case_ranks(runner, args):
         diff = np.abs(v - v1).max() / peak if same else np.inf
         ok = block.check(f"{n} ranks against 1", diff, 1.0e-9, unit="")
         block.lines.append(f"| {n} | {s} | {len(ids)} | {diff:.2e} | {ok} |")
+    if all(len(velocities[n][0]) == len(ids1) and np.array_equal(velocities[n][0], ids1)
+           for n in (2, 4)):
+        rank_figure(block, velocities, last, peak)
     return [block]
 
+
+def rank_figure(block, velocities, last, peak):
+    """doc/rank_invariance.png: the fluid's velocity profiles of the runs on 1, 2 and 4 ranks
+    against the transient analytic profile, and each particle's velocity difference from the
+    1-rank run over the peak, against the limit."""
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        block.failed.append("ranks: matplotlib missing for the figure")
+        return
+    snap, fluid, pos = last[1]
+    par = sph_error_table.channel_parameters(snap["attrs"].get("input", ""))
+    y = sph_error_table.wall_distance(par, pos[fluid])
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
+    ys = np.linspace(0.0, par["width"], 200)
+    left.plot(sph_analytic.channel(par["case"], ys, float(snap["time"]), par), ys * 1e3, "k-",
+              lw=0.8, label=f"analytic, t = {float(snap['time']):g} s")
+    # a floor for the log scale: a difference of exactly 0 is drawn there
+    floor = 1e-18
+    for n, marker in ((1, "o"), (2, "x"), (4, "+")):
+        v = velocities[n][1][fluid, par["flow"]]
+        left.plot(v, y * 1e3, marker, ms=3, ls="none", label=f"{n} rank{'s' if n > 1 else ''}")
+        if n > 1:
+            d = np.abs(velocities[n][1] - velocities[1][1])[fluid].max(axis=1) / peak
+            right.semilogy(y * 1e3, np.maximum(d, floor), marker, ms=3, ls="none",
+                           label=f"{n} ranks against 1")
+    right.axhline(1e-9, color="r", ls="--", lw=0.8, label="limit 1e-9")
+    right.set_ylim(floor / 2, 1e-7)
+    left.set_xlabel("velocity along the flow [m/s]")
+    left.set_ylabel("distance from the wall [mm]")
+    right.set_xlabel("distance from the wall [mm]")
+    right.set_ylabel("|v - v(1 rank)| / peak velocity")
+    right.set_title(f"after {velocities[1][2]} steps (0 drawn at {floor:g})", fontsize=9)
+    for ax in (left, right):
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(os.path.join(ROOT, "doc", "rank_invariance.png"), dpi=120)
+    plt.close(fig)
+    block.lines += ["", "![velocity profiles on 1, 2 and 4 ranks and their differences]"
+                    "(rank_invariance.png)"]
+
+
+# blocks in doc/validation.md besides those named as their case
+EXTRA_BLOCKS = ("channel_numerics", "channel_convergence")
 
 CASES = {
     "channel": (case_channel, False),

@@ -985,6 +985,24 @@ class TestDamagedRunFolder(unittest.TestCase):
         self.assertIn("short row", result.stderr)
         self.assertIn("mean fluid velocity 1.000000e-05", result.stdout)
 
+    def test_body_drag_figure(self):
+        # a forces file without the step means (older runs): the rows' forces are drawn
+        self.write_forces(last_row_short=False)
+        figure = os.path.join(self.folder, "drag.png")
+        result = run("body_drag.py", self.folder, "--case", "cyl", "--figure", figure,
+                     "--labels", "one run")
+        self.assertEqual(result.returncode, 0, result.stdout + result.stderr)
+        self.assertIn(f"wrote {figure}", result.stdout)
+        with open(figure, "rb") as f:
+            self.assertEqual(f.read(8), b"\x89PNG\r\n\x1a\n")
+        for bad, words in ((["--labels", "a,b"], "--labels names 2 runs, 1 are given"),
+                           (["--figure", os.path.join(self.folder, "drag.pdf")], ".png")):
+            result = run("body_drag.py", self.folder, "--case", "cyl", "--figure", figure,
+                         *bad)
+            self.assertEqual(result.returncode, 2, result.stdout + result.stderr)
+            self.assertIn(words, result.stderr)
+            self.assertNotIn("Traceback", result.stderr)
+
     def test_interface_profile_options_between_files(self):
         # uniform snapshots after an option are files, not "unrecognized arguments"
         missing = os.path.join(self.folder, "missing.h5")

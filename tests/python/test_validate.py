@@ -73,10 +73,32 @@ class TestBlocks(unittest.TestCase):
             validation = f.read()
         with open(os.path.join(ROOT, "README.md")) as f:
             readme = f.read()
-        for name in sph_validate.CASES:
+        for name in list(sph_validate.CASES) + list(sph_validate.EXTRA_BLOCKS):
             text = readme if name == "channel" else validation
             self.assertIn(f"<!-- validate:{name} -->", text, name)
             self.assertIn(f"<!-- /validate:{name} -->", text, name)
+
+    def test_channel_convergence_orders(self):
+        """Errors that quarter with each halving of the spacing have order 2; a missing run
+        is named, not skipped."""
+        rows = []
+        for case in ("poiseuille", "couette"):
+            for numerics in ("linear", "quadratic"):
+                for n in (20, 40, 80):
+                    rows.append((case, n, numerics, [400.0 / n ** 2, 1.0, 2.0 / n, 0.1]))
+        with tempfile.TemporaryDirectory() as tmp:
+            block = sph_validate.channel_convergence(rows, figure_dir=tmp)
+            self.assertTrue(os.path.getsize(os.path.join(tmp, "channel_convergence.png")) > 0)
+        self.assertEqual(block.failed, [])
+        table = [line for line in block.lines if line.startswith("| Couette | quadratic |")]
+        self.assertEqual(len(table), 4)
+        self.assertTrue(table[0].endswith("| 2.00 | 2.00 |"), table[0])
+        self.assertTrue(table[1].endswith("| 0.00 | 0.00 |"), table[1])
+        self.assertTrue(table[2].endswith("| 1.00 | 1.00 |"), table[2])
+        with tempfile.TemporaryDirectory() as tmp:
+            block = sph_validate.channel_convergence(rows[1:], figure_dir=tmp)
+        self.assertEqual(len(block.failed), 1)
+        self.assertIn("poiseuille (linear)", block.failed[0])
 
     def test_limit_check(self):
         block = sph_validate.Block("b")
