@@ -99,15 +99,29 @@ class Runner:
         self.binary = binary
         self.failures = []
         self.finished = set()   # runs made by this invocation: later cases reuse them
+        self.ranks_of = {}      # each run's rank count: one folder, one count
+
+    def relative(self, text):
+        """text with the work folder's path left out of the runs' paths (the blocks name
+        the runs, not the machine's folders)."""
+        return text.replace(self.work + os.sep, "")
 
     def run(self, name, source, overrides, nranks=None, restart=None):
         """Run input/`source` with `overrides` {group: {key: value}} as work/name (from the
         checkpoint `restart` if given); returns the output folder (None when the run failed).
         With --reuse a finished run is kept. A run is reused only when it was made from
-        the same input on the same number of ranks (validate.done records both): cases
-        that share a run's name but not its rank count (the cylinder lattice on 1 rank,
-        its remeshing on the default count) would otherwise measure whichever ran first,
-        and a chaotic flow differs in its details between rank counts."""
+        the same input on the same number of ranks (validate.done records both): a chaotic
+        flow differs in its details between rank counts. One name has one rank count
+        (ValueError otherwise): the cylinder lattice's serial runs are cylinder_L25_np1 and
+        cylinder_L50_np1, the remeshing cases' runs on the default count cylinder_L25 and
+        cylinder_L50."""
+        np_ = nranks or self.nranks
+        # a folder shared by runs on different rank counts was run again by each, the one
+        # measured last replacing the other's (and --reuse ran both again every time): the
+        # serial runs have names of their own (_np1)
+        if self.ranks_of.setdefault(name, np_) != np_:
+            raise ValueError(f"validate: the run {name} is asked on {self.ranks_of[name]} and "
+                             f"on {np_} ranks; give one of them another name")
         out = os.path.join(self.work, name)
         done = os.path.join(out, "validate.done")
         with open(os.path.join(ROOT, "input", source)) as f:
@@ -117,7 +131,6 @@ class Runner:
         overrides["output"] = dict(overrides["output"], output_dir=out)
         for group, values in overrides.items():
             text = set_keys(text, group, values)
-        np_ = nranks or self.nranks
         stamp = f"ranks {np_}\nrestart {restart}\n{text}"
         if (self.reuse or name in self.finished) and os.path.exists(done):
             with open(done) as f:
@@ -524,8 +537,9 @@ def body_lattice_block(runner, name, body, resolutions, parallel_from, source=No
     for n in resolutions:
         values = {group: dict(keys) for group, keys in (overrides or {}).items()}
         values.setdefault("domain", {})["dx"] = 0.1 / n
-        out = runner.run(f"{name}_L{n}", source or f"{name}.nml", values,
-                         nranks=1 if n < parallel_from else None)
+        serial = n < parallel_from
+        out = runner.run(f"{name}_L{n}" + ("_np1" if serial else ""), source or f"{name}.nml",
+                         values, nranks=1 if serial else None)
         if out is None:
             block.failed.append(f"{name}: L/{n} failed")
             return [block]
@@ -543,6 +557,7 @@ def body_lattice_block(runner, name, body, resolutions, parallel_from, source=No
     figure = f"{name}_drag.png"
     flags += ["--figure", os.path.join(ROOT, "doc", figure)]
     status, text = script("body_drag.py", *outs, *flags)
+    text = runner.relative(text)
     reference = ("" if reference_limit is None else
                  f", mean velocity within {reference_limit:g} % of Sangani & Acrivos")
     block.lines += ["```", text.strip(), "```", "",
@@ -612,7 +627,8 @@ def case_cylinder_remesh(runner, args):
     developed velocity field (relative L2 over the fluid of the mean over 3000-6000 s) and
     the drag within 2 % (issue 10)."""
     block = Block("cylinder_remesh")
-    plain = runner.run("cylinder_L50", "cylinder.nml", {"domain": {"dx": 2.0e-3}}, nranks=1)
+    plain = runner.run("cylinder_L50_np1", "cylinder.nml", {"domain": {"dx": 2.0e-3}},
+                       nranks=1)
     remeshed = runner.run("cylinder_L50_remesh", "cylinder_remesh.nml", {}, nranks=1)
     if plain is None or remeshed is None:
         block.failed.append("cylinder_remesh: a run failed")
@@ -639,6 +655,7 @@ def case_cylinder_remesh(runner, args):
                           "--fraction", "0.5", "--time-averaged", "--labels",
                           "L/50,L/50 remeshed every 500 s", "--figure",
                           os.path.join(ROOT, "doc", "cylinder_remesh_drag.png"))
+    text = runner.relative(text)
     drags = [float(v) for v in re.findall(r", drag ([0-9.eE+-]+),", text)][:2]
     drag_diff = (100.0 * abs(drags[1] - drags[0]) / abs(drags[0])
                  if len(drags) == 2 else None)
@@ -681,7 +698,8 @@ def case_cylinder_multires(runner, args):
     (input/cylinder_multires.nml) against the uniformly fine L/50 run: the drag per window
     within 2 % once developed (from 3000 s) and the real fluid mass within 0.1 % (issue 11)."""
     block = Block("cylinder_multires")
-    plain = runner.run("cylinder_L50", "cylinder.nml", {"domain": {"dx": 2.0e-3}}, nranks=1)
+    plain = runner.run("cylinder_L50_np1", "cylinder.nml", {"domain": {"dx": 2.0e-3}},
+                       nranks=1)
     multi = runner.run("cylinder_multires", "cylinder_multires.nml", {})
     if plain is None or multi is None:
         block.failed.append("cylinder_multires: a run failed")

@@ -100,6 +100,18 @@ class TestBlocks(unittest.TestCase):
         self.assertEqual(len(block.failed), 1)
         self.assertIn("poiseuille (linear)", block.failed[0])
 
+    def test_one_rank_count_per_run(self):
+        """A run name asked on two rank counts is refused before anything runs (the two
+        replaced each other's folder, and --reuse ran both again every time)."""
+        with tempfile.TemporaryDirectory() as tmp:
+            runner = sph_validate.Runner(tmp, 2, True, "/nonexistent/sphremesh")
+            runner.ranks_of["cylinder_L50"] = 1
+            with self.assertRaisesRegex(ValueError, "cylinder_L50 is asked on 1 and on 2"):
+                runner.run("cylinder_L50", "cylinder.nml", {})
+            self.assertEqual(os.listdir(tmp), [])
+            self.assertEqual(runner.relative(os.path.join(tmp, "cylinder_L50") + ": drag"),
+                             "cylinder_L50: drag")
+
     def test_limit_check(self):
         block = sph_validate.Block("b")
         self.assertEqual(block.check("a", 0.5, 1.0), "yes")
