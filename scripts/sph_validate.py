@@ -783,6 +783,7 @@ def case_remesh_disorder(runner, args):
                     "|---|---|---|---|---|---|---|---|"]
     scratch = os.path.join(runner.work, "remesh_disorder")
     os.makedirs(scratch, exist_ok=True)
+    histograms = {}     # (flow, last time): the figure's nearest distances
     for label, out, times in sources:
         if out is None:
             block.failed.append(f"remesh_disorder: the {label} run failed")
@@ -805,11 +806,17 @@ def case_remesh_disorder(runner, args):
                     if not held and developed:
                         block.failed.append(f"remesh_disorder: {label} at {t:g} s, {mode}: "
                                             f"{what} {value} outside issue 10's limit")
+                if t == times[-1] and developed:
+                    drawn = histograms.setdefault((label, t), {
+                        "dx": dx, "nearest": before["nearest"], "remeshed": []})
+                    drawn["remeshed"].append(
+                        (mode, dx * (0.5 if mode == "refine" else 2.0), after["nearest"]))
                 mark = " **NO**" if developed else " (outside)"
                 cells = [f"{value}" + ("" if held else mark) for _, value, held in checks]
                 when = f"{t:g}" if developed else f"{t:g} (initial lattice)"
                 block.lines.append(f"| {label} | {when} | {mode} | {before['count']} -> "
                                    f"{after['count']} | " + " | ".join(cells) + " |")
+    disorder_figure(block, histograms)
     block.lines += ["", "Limits (issue 10): refine 2^dim N within 2 %, mean nearest distance "
                     "half the original's within 5 %; coarsen N/2^dim within 5 %, mean twice "
                     "within 5 %; both: no pair closer than 0.4 new spacings, CoV within 25 % "
@@ -818,6 +825,43 @@ def case_remesh_disorder(runner, args):
                     "(outside) marks an initial lattice's figure outside it (reported, not "
                     "held)."]
     return [block]
+
+
+def disorder_figure(block, histograms, figure_dir=os.path.join(ROOT, "doc")):
+    """remesh_disorder.png in figure_dir: for each developed flow, the distribution of the
+    fluid particles' nearest distances over their spacing before the remesh and after its
+    refinement and coarsening ({(label, t): {"dx", "nearest", "remeshed": [(mode, new dx,
+    nearest)]}})."""
+    if not histograms:
+        return
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        block.failed.append("remesh_disorder: matplotlib missing for the figure")
+        return
+    fig, axes = plt.subplots(1, len(histograms), figsize=(4.2 * len(histograms), 3.6),
+                             squeeze=False)
+    bins = np.linspace(0.0, 1.6, 65)
+    for ax, ((label, t), drawn) in zip(axes[0], histograms.items()):
+        dx, nearest, remeshed = drawn["dx"], drawn["nearest"], drawn["remeshed"]
+        ax.hist(nearest / dx, bins=bins, density=True, histtype="stepfilled", color="0.8",
+                label=f"flow, N = {len(nearest)}")
+        for mode, new_dx, after in remeshed:
+            ax.hist(after / new_dx, bins=bins, density=True, histtype="step", lw=1.2,
+                    label=f"{ {'refine': 'refined', 'coarsen': 'coarsened'}[mode]}, "
+                          f"N = {len(after)}")
+        ax.axvline(0.4, color="r", ls=":", lw=0.8, label="closest allowed (0.4)")
+        ax.set_title(f"{label} at {t:g} s", fontsize=9)
+        ax.set_xlabel("nearest distance / own spacing")
+        ax.legend(fontsize=7)
+    axes[0][0].set_ylabel("probability density")
+    fig.tight_layout()
+    fig.savefig(os.path.join(figure_dir, "remesh_disorder.png"), dpi=120)
+    plt.close(fig)
+    block.lines += ["", "![nearest distances before and after remeshing the developed flows]"
+                    "(remesh_disorder.png)"]
 
 
 def case_remesh_continue(runner, args):
@@ -877,6 +921,7 @@ def case_remesh_continue(runner, args):
     # the cylinder both ways
     l25 = runner.run("cylinder_L25", "cylinder.nml", {"domain": {"dx": 0.1 / 25}})
     l50 = runner.run("cylinder_L50", "cylinder.nml", {"domain": {"dx": 0.1 / 50}})
+    drawn = []
     for label, mode, source, plain, name, dx in (
             ("cylinder L/25 at 1500 s -> L/50", "refine", l25, l50,
              "cylinder_L25_refined_L50", 0.1 / 50),
@@ -895,6 +940,17 @@ def case_remesh_continue(runner, args):
                                    ("mean fluid velocity, 3000-6000 s", speed, "m/s")):
             block.lines.append(f"| {label} | {what} [{unit}] | {a:.4e} | {b:.4e} | "
                                f"{100.0 * (a - b) / b:+.2f} % | (reported) | |")
+        new_n = round(0.1 / dx)
+        drawn += [(cont, f"{label} (continued)"), (plain, f"L/{new_n} throughout")]
+    if drawn:
+        figure = "remesh_continue_cylinder.png"
+        status, text = script("body_drag.py", *[out for out, _ in drawn], "--case", "cylinder",
+                              "--time-averaged", "--labels", ",".join(l for _, l in drawn),
+                              "--figure", os.path.join(ROOT, "doc", figure))
+        if status != 0:
+            block.failed.append(f"remesh_continue: body_drag failed: {text.strip()[-300:]}")
+        block.lines += ["", "![the cylinder remeshed at 1500 s and continued, against the runs "
+                        f"at the new spacing throughout]({figure})"]
     return [block]
 
 

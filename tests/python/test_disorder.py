@@ -97,6 +97,9 @@ class DisorderTest(unittest.TestCase):
         self.assertAlmostEqual(s["mean_nn"], self.mean, places=12)
         self.assertAlmostEqual(s["cov_nn"], self.cov, places=12)
         self.assertAlmostEqual(s["min_pair"], 0.7, places=12)    # across the periodic face
+        # the distances themselves (validate's histograms): 0.7 twice, sqrt(1.16) once, 1
+        np.testing.assert_allclose(np.sort(s["nearest"]),
+                                   [0.7, 0.7] + [1.0] * 13 + [math.sqrt(1.16)], rtol=1e-12)
         self.assertEqual((s["rho_min"], s["rho_max"]), (990.0, 1010.0))
         self.assertAlmostEqual(s["rho_spread"], math.sqrt(200.0 / 16.0) / 1000.0, places=14)
 

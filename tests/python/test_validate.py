@@ -8,6 +8,8 @@ import sys
 import tempfile
 import unittest
 
+import numpy as np
+
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 sys.path.insert(0, os.path.join(ROOT, "scripts"))
 
@@ -111,6 +113,17 @@ class TestBlocks(unittest.TestCase):
             self.assertEqual(os.listdir(tmp), [])
             self.assertEqual(runner.relative(os.path.join(tmp, "cylinder_L50") + ": drag"),
                              "cylinder_L50: drag")
+
+    def test_disorder_figure(self):
+        block = sph_validate.Block("remesh_disorder")
+        nearest = np.full(100, 1.0)
+        drawn = {("flow", 6.0): {"dx": 1.0, "nearest": nearest,
+                                 "remeshed": [("refine", 0.5, nearest / 2)]}}
+        with tempfile.TemporaryDirectory() as tmp:
+            sph_validate.disorder_figure(block, drawn, figure_dir=tmp)
+            self.assertTrue(os.path.getsize(os.path.join(tmp, "remesh_disorder.png")) > 0)
+        self.assertEqual(block.failed, [])
+        self.assertIn("(remesh_disorder.png)", block.lines[-1])
 
     def test_limit_check(self):
         block = sph_validate.Block("b")
