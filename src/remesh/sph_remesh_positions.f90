@@ -110,7 +110,7 @@ contains
     !> reaches the remesh with positions that differ in their last bits; one flipped decision
     !> spreads through the greedy passes, the relaxation and the mass adjustment (Morris'
     !> cylinder at L/50 refined in a run at 200 s: masses 11-16 % apart between 1 and 3
-    !> ranks, positions 0.32 new spacings, velocities 6.3e-3 of the peak; a cavity's
+    !> ranks, positions 0.32 new spacings, velocities 1.1e-2 of the peak; a cavity's
     !> refinement moved 2218 of its 2500 new particles when the input moved by one ulp).
     !> On the grid the same positions come from both, unless a point lies within its
     !> round-off of a cell's edge (about 1e-7 per particle and axis for differences of 1e-13
