@@ -18,7 +18,7 @@ submodule (sph_stepper) sph_stepper_remesh
     use sph_rates, only: compute_summation_density
     use sph_particles, only: HALO_GHOST
     use sph_errors, only: STATUS_OUTPUT_FAILED, remove_at_exit
-    use sph_filesystem, only: entry_kind, ENTRY_NONE
+    use sph_filesystem, only: entry_kind, ENTRY_NONE, MAX_FILE_PATH
     use sph_memory, only: peak_resident_bytes, startup_memory_bytes
     use sph_domain_input, only: misfit_axis
     implicit none
@@ -666,6 +666,14 @@ contains
         character(len=*), intent(in) :: in_path, out_path
         logical :: out_exists, out_writable
         integer :: unit, ios
+        ! OUT.tmp goes through MPI-IO, which takes MAX_FILE_PATH characters at most: found
+        ! here, not after the work (the write then stopped the remesh with status 74)
+        if (len(out_path) + len('.tmp') > MAX_FILE_PATH) &
+            call fatal_collective('remesh', "OUT '" // out_path // "' is " // &
+                int_text(int(len(out_path), i8)) // ' characters long: the checkpoint is ' // &
+                'written (as OUT.tmp) through MPI-IO, which takes at most ' // &
+                int_text(int(MAX_FILE_PATH - len('.tmp'), i8)) // ' for OUT; give a ' // &
+                'shorter path (or a symbolic link to its folder); nothing done')
         out_exists = .false.
         if (env%rank == 0) out_exists = entry_kind(out_path) /= ENTRY_NONE
         if (global_max(env, merge(1_i8, 0_i8, out_exists)) > 0) then

@@ -12,7 +12,8 @@
 #    refused again);
 #  - a closed box coarsened until the new spacing exceeds the box: refused before the work
 #    (before: "remesh: remesh: remesh_transfer: 9 old particle(s) have no new particle ...
-#    (a slot or gap between solids ...)").
+#    (a slot or gap between solids ...)");
+#  - an OUT longer than MPI-IO takes, before the work.
 # Each: exit status non-zero, exactly one error line, nothing written.
 # usage: check_remesh_study_refusals.sh MPIEXEC NP_FLAG NP EXTRA PROGRAM WORKDIR
 set -u
@@ -73,6 +74,15 @@ run --remesh coarsen box4.h5 box5.h5 > box5.log 2>&1 && fail "a spacing longer t
 refused box5.log "the new spacing (1.280E-03 m) is longer than the box on axis 1: no particle fits" \
     box5.h5
 grep -q "remesh: remesh:" box5.log && fail "the stage named twice:" box5.log
+# an OUT longer than MPI-IO takes: refused before the work (before: the remesh ran, and its
+# write stopped it with status 74)
+long=$(printf 'o%.0s' $(seq 1 240)).h5
+run --remesh coarsen "$chan_checkpoint" "$long" > long.log 2>&1 && fail "a 243-character OUT:" \
+    long.log
+refused long.log "characters long: the checkpoint is written (as OUT.tmp) through MPI-IO, which takes at most 236 for OUT" \
+    "$long"
+grep -q "remesh: .* -> " long.log && fail "the remesh ran first:" long.log
+[ -e "$long.tmp" ] && fail "the refused remesh left OUT.tmp"
 # (OUT.tmp, made at the start to keep OUT for this remesh, goes when it stops)
 [ -e box5.h5.tmp ] && fail "the refused remesh left box5.h5.tmp"
 [ -e back.h5.tmp ] && fail "the refused remesh left back.h5.tmp"
