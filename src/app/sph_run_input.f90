@@ -75,13 +75,16 @@ contains
     !> &output; the listed times must lie in [0, t_end] and increase. Entries past t_end (a
     !> shortened run) are skipped with a note (the group's), not refused. The output folder must
     !> be creatable: its nearest existing ancestor must be a directory (nothing is made here).
-    !> max_steps: &run's; a run writes at most one snapshot a step.
-    subroutine read_output_input(grp, t_end, max_steps, case_name, out)
+    !> max_steps: &run's; a run writes at most one snapshot a step. check_paths = .false.
+    !> (default .true.) leaves the file system alone (config_parse).
+    subroutine read_output_input(grp, t_end, max_steps, case_name, out, check_paths)
         type(nml_group_t), intent(inout) :: grp
         real(wp), intent(in) :: t_end
         integer, intent(in) :: max_steps
         character(len=*), intent(in) :: case_name   !< &run case_name (in the file names)
         type(output_input_t), intent(out) :: out
+        logical, intent(in), optional :: check_paths
+        logical :: ask
         integer :: k, n_kept
         character(len=:), allocatable :: problem
         character(len=32) :: t_text, n_text
@@ -90,7 +93,10 @@ contains
         if (len_trim(out%output_dir) == 0) then
             call grp%error('output_dir', 'must not be empty')
         else
-            call check_creatable(trim(out%output_dir), problem)
+            ask = .true.
+            if (present(check_paths)) ask = check_paths
+            problem = ''
+            if (ask) call check_creatable(trim(out%output_dir), problem)
             if (len(problem) > 0) call grp%error('output_dir', "'" // &
                 trim(out%output_dir) // "' cannot be created: " // problem)
             ! the longest file in it: DIR/CASE_checkpoint_<up to 9 digits>.h5.tmp

@@ -528,7 +528,8 @@ contains
         call read_snapshot_header(env, in_path, time, step, dimension, n_rows, input_text, &
             stat, errmsg)
         if (stat /= 0) call fatal_collective('remesh', errmsg)
-        call config_parse(cfg, input_text, in_path // ' (stored input)', stat, errmsg)
+        call config_parse(cfg, input_text, in_path // ' (stored input)', stat, errmsg, &
+            check_paths=.false.)
         if (stat /= 0) call fatal_collective('remesh', errmsg)
         ! a file remeshed before carries its spacing; its stored input has the original dx
         dx_file = stored_spacing(env, in_path)
@@ -625,7 +626,8 @@ contains
         call read_snapshot_header(env, in_path, time, step, dimension, n_rows, input_text, &
             stat, errmsg)
         if (stat /= 0) call fatal_collective('remesh', errmsg)
-        call config_parse(stored, input_text, in_path // ' (stored input)', stat, errmsg)
+        call config_parse(stored, input_text, in_path // ' (stored input)', stat, errmsg, &
+            check_paths=.false.)
         if (stat == 0 .and. allocated(stored%regions)) then
             if (size(stored%regions) > 0) call fatal_collective('remesh', "IN '" // in_path // &
                 "' holds a multi-resolution state already (its stored input has &region " // &

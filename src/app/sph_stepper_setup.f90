@@ -246,7 +246,8 @@ contains
         ! step starts from (a verlet continuation takes them, bit for bit; any other
         ! checkpoint's are evaluated again), and its particles (walls and bodies included)
         ! were laid for its geometry
-        call config_parse(stored, stored_input, 'checkpoint input', stat, errmsg)
+        call config_parse(stored, stored_input, 'checkpoint input', stat, errmsg, &
+            check_paths=.false.)
         ! a remeshed checkpoint keeps its input as given, with the spacing the run or the
         ! offline remesh changed to beside it (a restart gives that one, or the stored
         ! input's, taken at it above; refused below otherwise)
@@ -504,7 +505,8 @@ contains
         if (abs(dx_file - given%domain%dx) <= 1.0e-9_wp * dx_file) return
         call read_snapshot_header(env, path, time, step, dimension, n_rows, text, stat, errmsg)
         if (stat /= 0) return
-        call config_parse(stored, text, 'checkpoint input', stat, errmsg)
+        call config_parse(stored, text, 'checkpoint input', stat, errmsg, &
+            check_paths=.false.)
         if (stat /= 0) return
         if (abs(stored%domain%dx - given%domain%dx) > 1.0e-9_wp * stored%domain%dx) return
         if (allocated(given%regions)) then

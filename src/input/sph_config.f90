@@ -126,12 +126,16 @@ contains
     end subroutine read_to_end
 
     !> Parse, read every group through its owner and check everything. On error stat is the
-    !> number of problems and errmsg lists each, naming file, group and key.
-    subroutine config_parse(cfg, text, source_name, stat, errmsg)
+    !> number of problems and errmsg lists each, naming file, group and key. check_paths
+    !> (default .true.): also ask the file system whether &output output_dir can be made;
+    !> .false. for a checkpoint's stored input (its folder is the earlier run's, not this
+    !> one's) and on the ranks that take rank 0's answer (load_config).
+    subroutine config_parse(cfg, text, source_name, stat, errmsg, check_paths)
         type(config_t), intent(out) :: cfg
         character(len=*), intent(in) :: text, source_name
         integer, intent(out) :: stat
         character(len=:), allocatable, intent(out) :: errmsg
+        logical, intent(in), optional :: check_paths
         type(nml_file_t) :: file
         type(nml_group_t) :: grp(size(known_groups))
         type(nml_group_t), allocatable :: bodies(:), regions(:)
@@ -153,7 +157,8 @@ contains
         end do
         bodies = file%take_all('body')
         regions = file%take_all('region')
-        call read_groups(grp, bodies, regions, cfg, groups_known=stat == 0)
+        call read_groups(grp, bodies, regions, cfg, groups_known=stat == 0, &
+            check_paths=check_paths)
         cfg%resolved = ''
         cfg%notes = ''
         do g = 1, size(known_groups)
@@ -242,13 +247,13 @@ contains
     !> the file has a group of an unknown name (a misspelt `&fluids`), whose keys the checks
     !> across groups would miss: they are left until it is put right (with `&fluids
     !> body_force = ...`, the analytic channel was refused for want of a body force).
-    subroutine read_groups(grp, bodies, regions, cfg, groups_known)
+    subroutine read_groups(grp, bodies, regions, cfg, groups_known, check_paths)
         type(nml_group_t), intent(inout) :: grp(:), bodies(:), regions(:)
         type(config_t), intent(inout) :: cfg
-        logical, intent(in), optional :: groups_known
+        logical, intent(in), optional :: groups_known, check_paths
         call read_run_input(grp(1), cfg%run)
         call read_output_input(grp(2), cfg%run%t_end, cfg%run%max_steps, cfg%run%case_name, &
-            cfg%output)
+            cfg%output, check_paths)
         call read_domain_input(grp(3), cfg%domain)
         call read_fluid_input(grp(4), cfg%fluid)
         call read_numerics_input(grp(5), cfg%numerics)

@@ -1,5 +1,7 @@
 !> Collective loading of the input file: rank 0 reads, the text is broadcast, every rank parses
 !> and validates the same text, so a bad input stops all ranks with the same single message.
+!> What the text alone does not decide (whether &output output_dir can be made) rank 0 asks
+!> the file system, and every rank takes its verdict.
 module sph_input
     use sph_config, only: config_t, config_parse, config_read_file
     use sph_mpi_env, only: mpi_env_t, broadcast_text, agreed_status
@@ -31,6 +33,12 @@ contains
             errmsg = text
             return
         end if
-        call config_parse(cfg, text, filename, stat, errmsg)
+        ! only rank 0 asks the file system: ranks that saw it differently (another working
+        ! folder, a network file system's cache) went on apart, one into a collective stop
+        ! and the others into the set-up's collectives (fz51: a hang)
+        call config_parse(cfg, text, filename, stat, errmsg, check_paths=env%rank == 0)
+        stat = agreed_status(env, merge(1, 0, env%rank == 0 .and. stat /= 0))
+        ! (the other ranks made the same checks but that one: rank 0's message is the whole)
+        if (stat /= 0) call broadcast_text(env, errmsg)
     end subroutine load_config
 end module sph_input

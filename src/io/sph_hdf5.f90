@@ -34,7 +34,7 @@ module sph_hdf5
     use mpi_f08, only: MPI_INFO_NULL
     use sph_kinds, only: wp, i4, i8
     use sph_errors, only: fatal_abort, STATUS_OUTPUT_FAILED
-    use sph_mpi_env, only: mpi_env_t, global_sum, exclusive_scan_i8
+    use sph_mpi_env, only: mpi_env_t, global_sum, exclusive_scan_i8, rank0_flag
     use sph_filesystem, only: MAX_FILE_PATH, disk_hint
     use sph_logger, only: int_text
     implicit none
@@ -212,7 +212,12 @@ contains
                 int_text(int(MAX_FILE_PATH, i8)) // ' (a shorter folder, or a symbolic link)'
             return
         end if
-        inquire(file=path // '/.', exist=is_directory)
+        ! rank 0 asks and every rank takes its answer: a rank that saw a folder where the
+        ! others did not (another working folder, a network file system's cache) returned
+        ! here while they waited in the collective open (fz51: a hang, no message)
+        is_directory = .false.
+        if (env%rank == 0) inquire(file=path // '/.', exist=is_directory)
+        is_directory = rank0_flag(env, is_directory)
         if (is_directory) then
             stat = 1
             message = "'" // path // "' is a directory, not an HDF5 file"
