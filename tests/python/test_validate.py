@@ -111,8 +111,9 @@ class TestBlocks(unittest.TestCase):
             with self.assertRaisesRegex(ValueError, "cylinder_L50 is asked on 1 and on 2"):
                 runner.run("cylinder_L50", "cylinder.nml", {})
             self.assertEqual(os.listdir(tmp), [])
-            self.assertEqual(runner.relative(os.path.join(tmp, "cylinder_L50") + ": drag"),
-                             "cylinder_L50: drag")
+            self.assertEqual(runner.relative(os.path.join(tmp, "cylinder_L50") + ": drag\n"
+                                             "body_drag: wrote /x/doc/d.png\nchange"),
+                             "cylinder_L50: drag\nchange")
 
     def test_disorder_figure(self):
         block = sph_validate.Block("remesh_disorder")
