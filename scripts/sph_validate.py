@@ -100,6 +100,18 @@ class Runner:
         self.failures = []
         self.finished = set()   # runs made by this invocation: later cases reuse them
         self.ranks_of = {}      # each run's rank count: one folder, one count
+        self.commits = set()    # the program's commits that made the runs a case read
+
+    def note_version(self, log):
+        """Add the commit of the program that wrote `log` (its first line, 'sphremesh
+        VERSION (git HASH) ...') to self.commits: a block measured with --reuse says which
+        build made its runs, not only the commit that measured them."""
+        try:
+            with open(log) as f:
+                found = re.search(r"\(git ([0-9a-f]{7})[0-9a-f]*", f.readline())
+        except OSError:
+            found = None
+        self.commits.add(found.group(1) if found else "unknown")
 
     def relative(self, text):
         """A script's output as a block quotes it: the work folder's path left out of the
@@ -134,9 +146,11 @@ class Runner:
         for group, values in overrides.items():
             text = set_keys(text, group, values)
         stamp = f"ranks {np_}\nrestart {restart}\n{text}"
+        log_path = os.path.join(self.work, name + ".log")
         if (self.reuse or name in self.finished) and os.path.exists(done):
             with open(done) as f:
                 if f.read() == stamp:
+                    self.note_version(log_path)
                     return out
         os.makedirs(out, exist_ok=True)
         nml = os.path.join(self.work, name + ".nml")
@@ -152,8 +166,9 @@ class Runner:
         if restart:
             cmd += ["--restart", restart]
         print(f"validate: running {name} ({' '.join(cmd[1:3])})", flush=True)
-        with open(os.path.join(self.work, name + ".log"), "w") as log:
+        with open(log_path, "w") as log:
             status = subprocess.call(cmd, stdout=log, stderr=subprocess.STDOUT)
+        self.note_version(log_path)
         if status != 0:
             self.failures.append(f"{name}: sphremesh exited with {status} "
                                  f"(log {os.path.join(self.work, name + '.log')})")
@@ -750,7 +765,9 @@ def remesh_offline(runner, mode, source, target):
         os.remove(target)
     cmd = ["mpirun", "-np", str(runner.nranks), runner.binary, "--remesh", mode, source, target]
     with open(target + ".log", "w") as log:
-        return subprocess.call(cmd, stdout=log, stderr=subprocess.STDOUT) == 0
+        status = subprocess.call(cmd, stdout=log, stderr=subprocess.STDOUT)
+    runner.note_version(target + ".log")
+    return status == 0
 
 
 def disorder_checks(mode, before, after, new_dx):
@@ -1199,18 +1216,21 @@ def main(argv=None):
             continue
         if long_case and args.skip_long and not args.only:
             continue
+        runner.commits = set()
         try:
             blocks = func(runner, args)
         except Exception as exc:  # a broken case must not hide the others' results
             failed.append(f"{name}: the measurement failed: {type(exc).__name__}: {exc}")
             continue
+        made_by = (f", runs by git {' '.join(sorted(runner.commits))}"
+                   if runner.commits else "")
         for block in blocks:
             target = os.path.join(ROOT, "README.md") if block.name == "channel" else \
                 os.path.join(ROOT, "doc", "validation.md")
             # a case that measured nothing says why in its block instead of leaving it empty
             lines = block.lines or ["**Not measured:** " + "; ".join(block.failed +
                                                                      runner.failures)]
-            if not replace_block(target, block.name, lines, stamp):
+            if not replace_block(target, block.name, lines, stamp + made_by):
                 failed.append(f"{block.name}: no validate:{block.name} markers in {target}")
             failed += block.failed
             print("\n".join([f"== {block.name}"] + lines), flush=True)

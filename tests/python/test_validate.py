@@ -115,6 +115,18 @@ class TestBlocks(unittest.TestCase):
                                              "body_drag: wrote /x/doc/d.png\nchange"),
                              "cylinder_L50: drag\nchange")
 
+    def test_runs_commit_noted(self):
+        """A block measured with --reuse names the builds that made its runs (the first
+        line of each run's log), 'unknown' for a log that is missing or says none."""
+        with tempfile.TemporaryDirectory() as tmp:
+            runner = sph_validate.Runner(tmp, 2, True, "/nonexistent/sphremesh")
+            log = os.path.join(tmp, "a.log")
+            with open(log, "w") as f:
+                f.write("sphremesh 0.1.0 (git 68e4eb9f727c-dirty) on 2 MPI rank(s)\nmore\n")
+            runner.note_version(log)
+            runner.note_version(os.path.join(tmp, "missing.log"))
+            self.assertEqual(runner.commits, {"68e4eb9", "unknown"})
+
     def test_disorder_figure(self):
         block = sph_validate.Block("remesh_disorder")
         nearest = np.full(100, 1.0)
