@@ -224,6 +224,20 @@ def snapshot_time(path):
     return float(np.ravel(sph_snapshot.load(path)["attrs"]["time"])[0])
 
 
+def pyplot(block):
+    """matplotlib's pyplot on the file backend, or None with the block's failure noted (the
+    figures are part of what validate regenerates)."""
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        import matplotlib.ticker  # noqa: F401 (plt.matplotlib.ticker for the log axes)
+    except ImportError:
+        block.failed.append(f"{block.name}: matplotlib missing for the figure")
+        return None
+    return plt
+
+
 def percent(x):
     return f"{x:.3g} %" if x is not None else "n/a"
 
@@ -376,13 +390,8 @@ def channel_convergence(rows, figure_dir=os.path.join(ROOT, "doc")):
                     " | ".join(percent(x) for x in e) + " | " +
                     " | ".join(f"{o:.2f}" for o in orders) + " |")
                 curves.append((case, numerics, t, e))
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        import matplotlib.ticker
-    except ImportError:
-        block.failed.append("channel_convergence: matplotlib missing for the figure")
+    plt = pyplot(block)
+    if plt is None:
         return block
     fig, axes = plt.subplots(1, 2, figsize=(12.5, 4))
     for ax, case in zip(axes, titles):
@@ -397,7 +406,7 @@ def channel_convergence(rows, figure_dir=os.path.join(ROOT, "doc")):
         if first:
             guide = first[0][0] * (np.array(resolutions) / resolutions[0]) ** -2.0
             ax.loglog(resolutions, guide, "k:", lw=0.8, label="second order")
-        ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
+        ax.xaxis.set_minor_locator(plt.matplotlib.ticker.NullLocator())
         ax.set_xticks(resolutions)
         ax.set_xticklabels([f"L/{n}" for n in resolutions])
         ax.set_xlabel("particle spacing")
@@ -445,10 +454,8 @@ def case_long_poiseuille(runner, args):
         block.lines += [
             "", f"Shipped input, largest from 2 to 10 s: {percent(worst)} (limit: issue 9's "
             f"0.3 %, held: {held}). Smallest largest error over 2-10 s: {best[0]}."]
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+    plt = pyplot(block)
+    if plt is not None:
         fig, ax = plt.subplots(figsize=(6.5, 3.8))
         for label, errors in curves:
             ax.plot(times, errors, "o-", label=label)
@@ -461,8 +468,6 @@ def case_long_poiseuille(runner, args):
         fig.savefig(os.path.join(ROOT, "doc", "poiseuille_long_error.png"), dpi=150)
         plt.close(fig)
         block.lines += ["", "![error over time](poiseuille_long_error.png)"]
-    except ImportError:
-        block.failed.append("long_poiseuille: matplotlib missing for the figure")
     return [block]
 
 
@@ -860,12 +865,8 @@ def disorder_figure(block, histograms, figure_dir=os.path.join(ROOT, "doc")):
     nearest)]}})."""
     if not histograms:
         return
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        block.failed.append("remesh_disorder: matplotlib missing for the figure")
+    plt = pyplot(block)
+    if plt is None:
         return
     fig, axes = plt.subplots(1, len(histograms), figsize=(4.2 * len(histograms), 3.6),
                              squeeze=False)
@@ -1095,12 +1096,8 @@ def rank_figure(block, velocities, last, peak):
     """doc/rank_invariance.png: the fluid's velocity profiles of the runs on 1, 2 and 4 ranks
     against the transient analytic profile, and each particle's velocity difference from the
     1-rank run over the peak, against the limit."""
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        block.failed.append("ranks: matplotlib missing for the figure")
+    plt = pyplot(block)
+    if plt is None:
         return
     snap, fluid, pos = last[1]
     par = sph_error_table.channel_parameters(snap["attrs"].get("input", ""))

@@ -4,7 +4,7 @@
 !> the file system, and every rank takes its verdict.
 module sph_input
     use sph_config, only: config_t, config_parse, config_read_file
-    use sph_mpi_env, only: mpi_env_t, broadcast_text, agreed_status
+    use sph_mpi_env, only: mpi_env_t, broadcast_text, agreed_status, rank0_flag
     implicit none
     private
     public :: load_config
@@ -37,8 +37,8 @@ contains
         ! folder, a network file system's cache) went on apart, one into a collective stop
         ! and the others into the set-up's collectives (fz51: a hang)
         call config_parse(cfg, text, filename, stat, errmsg, check_paths=env%rank == 0)
-        stat = agreed_status(env, merge(1, 0, env%rank == 0 .and. stat /= 0))
         ! (the other ranks made the same checks but that one: rank 0's message is the whole)
+        stat = merge(1, 0, rank0_flag(env, stat /= 0))
         if (stat /= 0) call broadcast_text(env, errmsg)
     end subroutine load_config
 end module sph_input
